@@ -1,0 +1,103 @@
+"""The central pattern generator: a ring oscillator after Lewis (1996).
+
+A ring of rate-coded units. The active unit bursts while its adaptation variable charges from 0
+to 1; at threshold it inhibits itself and releases the next unit in the ring (post-inhibitory
+rebound), so activity travels round the ring once per step cycle. The first half of the ring
+drives the extensors (stance), the second half the flexors (swing). Each unit charges at
+``units_per_half / duration``, so the flexor half bursts for ``burst_s``: the burst length is
+the CPG's parameter that the premotor module modulates, and it may change at any tick (the
+modulation is smooth because the adaptation keeps its charge and only its rate changes).
+
+Outputs per tick (:class:`CpgOutput`): each unit's smooth rate output, the flexor drive (the
+flexor units' summed rate times the amplitude, which the lift reflex raises), the phase within
+the current half, and the *step onset* signal: one tick at the onset of the first extensor
+unit, i.e. at touchdown, which gates the range encoder into short-term memory.
+
+Modelling choice: the paper gives no equations. Units here are leaky integrators of a binary
+burst (time constant ``activation_tau_s``); the handoff is the threshold event. This keeps the
+ring's defining property (a burst travelling round a ring, one parameter per unit setting its
+burst length) with a period that is exactly stance_s + burst_s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from controller.config import CpgConfig
+
+
+@dataclass(frozen=True)
+class CpgOutput:
+    """What the CPG emits on one tick.
+
+    Attributes:
+        onset: True on the one tick a new step cycle (stance) begins.
+        flexing: True while a flexor unit is active (swing).
+        phase: progress through the current half, 0..1 (stance or swing).
+        flexor_drive: summed rate of the flexor units times the amplitude, 0..amplitude.
+        step_index: number of step onsets so far.
+    """
+
+    onset: bool
+    flexing: bool
+    phase: float
+    flexor_drive: float
+    step_index: int
+
+
+class RingOscillator:
+    """A ring of ``2 * units_per_half`` units; unit 0 starts the stance half."""
+
+    def __init__(self, config: CpgConfig) -> None:
+        self.config = config
+        self.n_half = config.units_per_half
+        self.n_units = 2 * self.n_half
+        self.burst_s = config.burst_s
+        self.amplitude = 1.0
+        self.reset()
+
+    def reset(self, start_unit: int = 0) -> None:
+        self.active = start_unit
+        self.adaptation = 0.0
+        self.rates = [0.0] * self.n_units
+        self.rates[start_unit] = 1.0
+        self.step_index = 0
+        self._pending_onset = start_unit == 0
+
+    def set_burst_s(self, burst_s: float) -> float:
+        """Set the flexion burst length, clipped to the configured safe bounds; returns it."""
+        c = self.config
+        self.burst_s = min(c.burst_max_s, max(c.burst_min_s, burst_s))
+        return self.burst_s
+
+    def _duration_s(self, unit: int) -> float:
+        half = self.config.stance_s if unit < self.n_half else self.burst_s
+        return half / self.n_half
+
+    def step(self, dt_s: float) -> CpgOutput:
+        """Advance by ``dt_s`` (one tick: callers never split a late tick into several)."""
+        onset = self._pending_onset
+        self._pending_onset = False
+        remaining = dt_s
+        # The handoff may happen inside this tick; carry the rest of dt into the next unit.
+        for _ in range(self.n_units):
+            rate = 1.0 / self._duration_s(self.active)
+            need = (1.0 - self.adaptation) / rate
+            if remaining < need:
+                self.adaptation += remaining * rate
+                break
+            remaining -= need
+            self.active = (self.active + 1) % self.n_units
+            self.adaptation = 0.0
+            if self.active == 0:
+                self.step_index += 1
+                onset = True
+        tau = self.config.activation_tau_s
+        k = 1.0 if tau <= 0.0 else min(1.0, dt_s / tau)
+        for i in range(self.n_units):
+            target = 1.0 if i == self.active else 0.0
+            self.rates[i] += k * (target - self.rates[i])
+        flexing = self.active >= self.n_half
+        phase = ((self.active % self.n_half) + self.adaptation) / self.n_half
+        drive = self.amplitude * sum(self.rates[self.n_half :])
+        return CpgOutput(onset, flexing, phase, drive, self.step_index)

@@ -1,0 +1,248 @@
+"""The PyBullet plant: the gait rig on its rail, the ground and the obstacles.
+
+This is the physics only. Motor drivers (``odrive_axis``) reach the joints through
+:meth:`RigPlant.joint_state` and :meth:`RigPlant.set_joint_torque`; the sensor board through
+:meth:`RigPlant.range_m` and :meth:`RigPlant.contacts`. Scenario control (rail speed, obstacle
+placement, resets) is a side channel of the simulation, never on the bus.
+
+Frames: x forward along the rail, z up; the ground's top face is z = 0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import pybullet
+from pybullet_utils import bullet_client
+
+import urdf
+
+LEG_JOINTS = ("hip", "knee")
+_SLOT = {name: i for i, name in enumerate(LEG_JOINTS)}
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """Physical set-up of the rig.
+
+    Attributes:
+        physics_hz: physics steps per simulated second [Hz]; default 1000.
+        rail_speed_m_s: carriage speed along the rail [m/s]; default 0.5.
+        sensor_offset_x_m: range sensor origin ahead of the hip axis [m]; default 0.15 (the boom).
+        sensor_height_m: range sensor origin above the ground [m]; default 0.06.
+        sensor_aim_m: horizontal distance at which the sensor's ray meets flat ground [m];
+            default 3.2 (just beyond the sensor's 3 m range, so flat ground reads "no target").
+        gravity_m_s2: gravity [m/s^2]; default 9.81.
+        solver_iterations: PyBullet constraint solver iterations; default 20 (enough for one foot contact).
+        contact_force_n: normal force above which a switch reads closed [N]; default 0.5.
+    """
+
+    physics_hz: float = 1000.0
+    rail_speed_m_s: float = 0.5
+    sensor_offset_x_m: float = 0.15
+    sensor_height_m: float = 0.06
+    sensor_aim_m: float = 3.2
+    gravity_m_s2: float = 9.81
+    solver_iterations: int = 20
+    contact_force_n: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 100.0 <= self.physics_hz <= 20000.0:
+            raise ValueError(f"physics_hz must be in [100, 20000] Hz, got {self.physics_hz}")
+        if not 0.0 <= self.rail_speed_m_s <= 3.0:
+            raise ValueError(f"rail_speed_m_s must be in [0, 3] m/s, got {self.rail_speed_m_s}")
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """A rectangular block across the rail.
+
+    Attributes:
+        near_edge_x_m: world x of its near (leg-side) face [m].
+        height_m: height [m]; default 0.10.
+        depth_m: extent along the rail [m]; default 0.10.
+    """
+
+    near_edge_x_m: float
+    height_m: float = 0.10
+    depth_m: float = 0.10
+
+
+@contextlib.contextmanager
+def _c_stdout_to_stderr():
+    """PyBullet's C code prints a banner on stdout when it connects; keep stdout for our JSON."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+class RigPlant:
+    """The rig in a PyBullet world (DIRECT by default, GUI for a person watching)."""
+
+    def __init__(self, config: RigConfig = RigConfig(), *, gui: bool = False) -> None:
+        self.config = config
+        self.dt_s = 1.0 / config.physics_hz
+        with _c_stdout_to_stderr():
+            self._p = bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        self._cid = self._p._client
+        p = self._p
+        p.setPhysicsEngineParameter(fixedTimeStep=self.dt_s, numSolverIterations=config.solver_iterations)
+        p.setGravity(0, 0, -config.gravity_m_s2)
+        self.ground = p.loadURDF(str(urdf.GROUND), useFixedBase=True)
+        self.robot = p.loadURDF(str(urdf.GAIT_RIG), useFixedBase=True)
+        names = {p.getJointInfo(self.robot, j)[1].decode(): j for j in range(p.getNumJoints(self.robot))}
+        self._rail = names["rail"]
+        self._joint_index = {name: names[name] for name in LEG_JOINTS}
+        self._leg = [self._joint_index[n] for n in LEG_JOINTS]
+        self.foot_link = names["ankle"]
+        self.shank_link = self._joint_index["knee"]
+        self.thigh_link = self._joint_index["hip"]
+        self.joint_limits_rad = {
+            n: (p.getJointInfo(self.robot, j)[8], p.getJointInfo(self.robot, j)[9]) for n, j in self._joint_index.items()
+        }
+        self.effort_limits_nm = {n: p.getJointInfo(self.robot, j)[10] for n, j in self._joint_index.items()}
+        # Joints are torque-driven: switch off PyBullet's default velocity motors.
+        p.setJointMotorControlArray(self.robot, self._leg, pybullet.VELOCITY_CONTROL, forces=[0.0, 0.0])
+        self._torque = [0.0, 0.0]
+        self._states: tuple = ()
+        self._obstacles: list[tuple[int, Obstacle]] = []
+        self._urdf_dir = tempfile.TemporaryDirectory(prefix="es-obstacles-")
+        self.t_s = 0.0
+        self.rail_speed_m_s = config.rail_speed_m_s
+        self.reset()
+
+    # -- scenario side channel -------------------------------------------------------------
+    def reset(self, carriage_x_m: float = 0.0, hip_rad: float = 0.5, knee_rad: float = -1.0) -> None:
+        """Put the carriage at ``carriage_x_m`` moving at the rail speed, the leg at rest."""
+        p = self._p
+        p.resetJointState(self.robot, self._rail, carriage_x_m, self.rail_speed_m_s)
+        p.resetJointState(self.robot, self._joint_index["hip"], hip_rad, 0.0)
+        p.resetJointState(self.robot, self._joint_index["knee"], knee_rad, 0.0)
+        self.set_rail_speed(self.rail_speed_m_s)
+        self._torque = [0.0, 0.0]
+        self._contacts_t_s = -1.0
+        self._contacts = (False, False)
+        self._read_states()
+
+    def set_rail_speed(self, speed_m_s: float) -> None:
+        self.rail_speed_m_s = speed_m_s
+        self._p.setJointMotorControl2(
+            self.robot, self._rail, pybullet.VELOCITY_CONTROL, targetVelocity=speed_m_s, force=2000.0
+        )
+
+    def add_obstacle(self, obstacle: Obstacle) -> int:
+        path = Path(self._urdf_dir.name) / f"obstacle_{obstacle.height_m:.4f}_{obstacle.depth_m:.4f}.urdf"
+        if not path.exists():
+            path.write_text(urdf.obstacle_urdf(obstacle.height_m, obstacle.depth_m))
+        body = self._p.loadURDF(str(path), basePosition=[obstacle.near_edge_x_m, 0.0, 0.0], useFixedBase=True)
+        self._obstacles.append((body, obstacle))
+        return body
+
+    def clear_obstacles(self) -> None:
+        for body, _ in self._obstacles:
+            self._p.removeBody(body)
+        self._obstacles.clear()
+
+    @property
+    def obstacles(self) -> list[Obstacle]:
+        return [o for _, o in self._obstacles]
+
+    # -- motor driver side -----------------------------------------------------------------
+    def joint_state(self, name: str) -> tuple[float, float]:
+        """(angle [rad], velocity [rad/s]) of a leg joint, as of the last physics step."""
+        state = self._states[_SLOT[name]]
+        return state[0], state[1]
+
+    def set_joint_torque(self, name: str, torque_nm: float) -> None:
+        """Torque applied at the next step [N m], clamped to the joint's effort limit."""
+        limit = self.effort_limits_nm[name]
+        self._torque[_SLOT[name]] = limit if torque_nm > limit else (-limit if torque_nm < -limit else torque_nm)
+
+    def step(self) -> None:
+        """Apply the held torques and advance one physics step (the hot path: raw pybullet calls)."""
+        cid = self._cid
+        pybullet.setJointMotorControlArray(
+            self.robot, self._leg, pybullet.TORQUE_CONTROL, forces=self._torque, physicsClientId=cid
+        )
+        pybullet.stepSimulation(physicsClientId=cid)
+        self.t_s += self.dt_s
+        self._read_states()
+
+    def _read_states(self) -> None:
+        self._states = tuple(pybullet.getJointStates(self.robot, self._leg, physicsClientId=self._cid))
+
+    # -- sensor board side -----------------------------------------------------------------
+    @property
+    def carriage_x_m(self) -> float:
+        return pybullet.getJointState(self.robot, self._rail, physicsClientId=self._cid)[0]
+
+    def range_m(self) -> float | None:
+        """True distance along the range sensor's ray to the first hit within 3 m, else None."""
+        c = self.config
+        x0 = self.carriage_x_m + c.sensor_offset_x_m
+        z0 = c.sensor_height_m
+        length = math.hypot(c.sensor_aim_m, z0)
+        hit = pybullet.rayTest([x0, 0.0, z0], [x0 + c.sensor_aim_m, 0.0, 0.0], physicsClientId=self._cid)[0]
+        if hit[0] < 0 or hit[0] == self.robot:
+            return None
+        distance = hit[2] * length
+        return distance if distance <= 3.0 else None
+
+    def contacts(self) -> tuple[bool, bool]:
+        """(foot switch, shin switch): each closed while its link presses on anything.
+
+        Read once per physics step and cached: the sensor board and the experiment's ground
+        truth may both ask within one step.
+        """
+        if self._contacts_t_s == self.t_s:
+            return self._contacts
+        foot = shin = False
+        threshold = self.config.contact_force_n
+        for pt in pybullet.getContactPoints(bodyA=self.robot, physicsClientId=self._cid):
+            if pt[9] > threshold:
+                if pt[3] == self.foot_link:
+                    foot = True
+                elif pt[3] == self.shank_link:
+                    shin = True
+        self._contacts = (foot, shin)
+        self._contacts_t_s = self.t_s
+        return self._contacts
+
+    # -- ground truth for experiments (never on the bus) ------------------------------------
+    def foot_position(self) -> tuple[float, float]:
+        """World (x, z) of the foot sphere's lowest point [m]."""
+        pos = pybullet.getLinkState(self.robot, self.foot_link, physicsClientId=self._cid)[0]
+        return pos[0], pos[2] - 0.02
+
+    def obstacle_contact(self) -> bool:
+        """True while any leg link touches any obstacle."""
+        for body, _ in self._obstacles:
+            if self._p.getContactPoints(bodyA=self.robot, bodyB=body):
+                return True
+        return False
+
+    def render_rgb(self, width: int = 480, height: int = 320, target_x_m: float | None = None):
+        """An RGB image (height x width x 3 uint8 list) from a side camera, DIRECT mode included."""
+        x = self.carriage_x_m if target_x_m is None else target_x_m
+        view = self._p.computeViewMatrix([x, -1.6, 0.35], [x, 0.0, 0.25], [0, 0, 1])
+        proj = self._p.computeProjectionMatrixFOV(40.0, width / height, 0.05, 10.0)
+        _, _, rgb, _, _ = self._p.getCameraImage(width, height, view, proj, renderer=pybullet.ER_TINY_RENDERER)
+        return rgb
+
+    def close(self) -> None:
+        try:
+            self._p.disconnect()
+        except pybullet.error:
+            pass
+        self._urdf_dir.cleanup()

@@ -1,0 +1,198 @@
+"""Load the DBC and turn it into codecs addressed by node id.
+
+ODrive's messages are defined in the DBC for node 0 (frame id = cmd id); a driver at node N
+uses ``N << 5 | cmd_id``. The sensor board's messages carry their full ids (node 16).
+
+:class:`MessageCodec` packs and unpacks payloads. Where every signal of a message is
+byte-aligned, little-endian and 8/16/32 bits wide, the layout is compiled once into a
+``struct.Struct`` (the hot path: a few hundred nanoseconds a frame); otherwise cantools does the
+work. Both paths come from the same DBC signal definitions and are tested against each other.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import struct
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import cantools
+
+SENSOR_BOARD_NODE_ID = 16
+NODE_ID_BITS = 6
+CMD_ID_MASK = 0x1F
+MAX_NODE_ID = 0x3F
+DBC_PATH = Path(str(resources.files("protocol").joinpath("elegant_stepping.dbc")))
+
+
+def arbitration_id(node_id: int, cmd_id: int) -> int:
+    """CANSimple arbitration id: ``node_id << 5 | cmd_id``."""
+    if not 0 <= node_id <= MAX_NODE_ID:
+        raise ValueError(f"node id must be 0..63, got {node_id}")
+    if not 0 <= cmd_id <= CMD_ID_MASK:
+        raise ValueError(f"cmd id must be 0..31, got {cmd_id}")
+    return (node_id << 5) | cmd_id
+
+
+def split_arbitration_id(arb_id: int) -> tuple[int, int]:
+    """(node_id, cmd_id) of a CANSimple arbitration id."""
+    return arb_id >> 5, arb_id & CMD_ID_MASK
+
+
+_STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h", (32, False): "I", (32, True): "i"}
+
+
+class MessageCodec:
+    """Encode and decode one message's payload in physical units.
+
+    ``pack(*values)`` and ``unpack(data)`` take and return values in the DBC's signal order;
+    ``encode(**signals)`` and ``decode(data)`` use names. Integers outside a signal's raw range
+    raise ``ValueError``; so do NaN or infinite values for integer signals.
+    """
+
+    def __init__(self, message: cantools.database.Message) -> None:
+        self.message = message
+        self.name: str = message.name
+        self.frame_id: int = message.frame_id
+        self.cmd_id: int = message.frame_id & CMD_ID_MASK
+        self.dlc: int = message.length
+        signals = sorted(message.signals, key=lambda s: s.start)
+        self.signal_names: tuple[str, ...] = tuple(s.name for s in signals)
+        self._scales = tuple((float(s.scale), float(s.offset), bool(s.is_float)) for s in signals)
+        self._struct = self._compile(signals, message.length)
+        self.compiled = self._struct is not None
+        self._int_limits = tuple(self._raw_limits(s) for s in signals)
+        # Fast path: no signal is scaled, so physical values are raw values and struct checks
+        # integer ranges itself (struct.error -> ValueError below).
+        self._identity = all(scale == 1.0 and offset == 0.0 for scale, offset, _ in self._scales)
+        self._float_only = all(is_float for _, _, is_float in self._scales)
+        self._int_fields = tuple(
+            (i, scale, offset, *limits)
+            for i, ((scale, offset, is_float), limits) in enumerate(zip(self._scales, self._int_limits))
+            if not is_float
+        )
+
+    @staticmethod
+    def _raw_limits(sig) -> tuple[float, float] | None:
+        if sig.is_float:
+            return None
+        if sig.is_signed:
+            return -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
+        return 0, (1 << sig.length) - 1
+
+    @staticmethod
+    def _compile(signals, length: int) -> struct.Struct | None:
+        fmt = "<"
+        pos = 0
+        for s in signals:
+            if s.byte_order != "little_endian" or s.start % 8 or s.start < pos:
+                return None
+            code = "f" if (s.is_float and s.length == 32) else _STRUCT_CODES.get((s.length, s.is_signed))
+            if code is None or (s.is_float and s.length != 32):
+                return None
+            if s.start > pos:
+                fmt += f"{(s.start - pos) // 8}x"
+            fmt += code
+            pos = s.start + s.length
+        if pos > length * 8:
+            return None
+        if pos < length * 8:
+            fmt += f"{(length * 8 - pos) // 8}x"
+        return struct.Struct(fmt)
+
+    def pack(self, *values: float) -> bytes:
+        if len(values) != len(self._scales):
+            raise ValueError(f"{self.name} takes {len(self._scales)} signals, got {len(values)}")
+        if self._struct is None:
+            return self.encode(**dict(zip(self.signal_names, values)))
+        if self._float_only:
+            return self._struct.pack(*values)
+        raw = list(values)
+        for i, scale, offset, lo, hi in self._int_fields:
+            value = values[i]
+            r = (value - offset) / scale
+            if not math.isfinite(r):
+                raise ValueError(f"{self.name}: non-finite value {value!r} for an integer signal")
+            r = round(r)
+            if r < lo or r > hi:
+                raise ValueError(f"{self.name}: value {value!r} outside the signal's raw range {(lo, hi)}")
+            raw[i] = r
+        return self._struct.pack(*raw)
+
+    def unpack(self, data: bytes | bytearray) -> tuple[float, ...]:
+        """Physical values in signal order. Raises ``ValueError`` on a short payload."""
+        if len(data) < self.dlc:
+            raise ValueError(f"{self.name}: payload of {len(data)} bytes, DLC {self.dlc} expected")
+        if self._struct is None:
+            decoded = self.message.decode(bytes(data[: self.dlc]), decode_choices=False, scaling=True)
+            return tuple(decoded[n] for n in self.signal_names)
+        raw = self._struct.unpack_from(data)
+        if self._identity:
+            return raw
+        return tuple(r if is_float else r * scale + offset for r, (scale, offset, is_float) in zip(raw, self._scales))
+
+    def encode(self, **signals: float) -> bytes:
+        if self._struct is not None:
+            missing = set(self.signal_names) - signals.keys()
+            if missing:
+                raise ValueError(f"{self.name}: missing signals {sorted(missing)}")
+            return self.pack(*(signals[n] for n in self.signal_names))
+        return bytes(self.message.encode(signals, scaling=True, strict=True))
+
+    def decode(self, data: bytes | bytearray) -> dict[str, float]:
+        return dict(zip(self.signal_names, self.unpack(data)))
+
+
+@dataclass(frozen=True)
+class Route:
+    """What an arbitration id means: which node sent or receives it and which message it is."""
+
+    node_id: int
+    codec: MessageCodec
+
+
+class BusContract:
+    """The DBC as codecs. ``BusContract.load()`` is cached: one parse per process."""
+
+    def __init__(self, db: cantools.database.Database) -> None:
+        self.db = db
+        self.odrive: dict[int, MessageCodec] = {}
+        self.sensor_board: dict[int, MessageCodec] = {}
+        self.by_name: dict[str, MessageCodec] = {}
+        for message in db.messages:
+            codec = MessageCodec(message)
+            self.by_name[message.name] = codec
+            node_id = message.frame_id >> 5
+            if node_id == 0:
+                self.odrive[codec.cmd_id] = codec
+            elif node_id == SENSOR_BOARD_NODE_ID:
+                self.sensor_board[codec.cmd_id] = codec
+            else:
+                raise ValueError(f"DBC message {message.name} at {message.frame_id:#x} belongs to no known node")
+
+    @classmethod
+    @functools.lru_cache(maxsize=4)
+    def load(cls, path: str | None = None) -> "BusContract":
+        return cls(cantools.database.load_file(str(path or DBC_PATH)))
+
+    def codec(self, name: str) -> MessageCodec:
+        try:
+            return self.by_name[name]
+        except KeyError:
+            raise KeyError(f"no message named {name!r} in the DBC") from None
+
+    def route(self, arb_id: int) -> Route | None:
+        """The node and codec of an arbitration id, or None for an id outside the contract."""
+        node_id, cmd_id = split_arbitration_id(arb_id)
+        table = self.sensor_board if node_id == SENSOR_BOARD_NODE_ID else self.odrive
+        codec = table.get(cmd_id)
+        return None if codec is None else Route(node_id, codec)
+
+    def odrive_id(self, node_id: int, name: str) -> int:
+        return arbitration_id(node_id, self.codec(name).cmd_id)
+
+    def cycle_time_s(self, name: str) -> float | None:
+        ms = self.codec(name).message.cycle_time
+        return None if not ms else ms / 1000.0

@@ -1,0 +1,80 @@
+"""Small stand-ins for the PyBullet plant, used by the firmware simulation's tests.
+
+:class:`FakeJointPlant` is a set of independent 1-DOF rotary inertias with viscous damping and
+an optional constant load torque, integrated with semi-implicit (symplectic) Euler: velocity
+first, then position with the new velocity. :class:`FakeSensorSource` returns whatever range
+and contacts a test sets.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+
+@dataclass
+class _Joint:
+    q: float = 0.0
+    qd: float = 0.0
+    tau: float = 0.0
+
+
+class FakeJointPlant:
+    """Independent joints: ``inertia * qdd = tau + load_torque - damping * qd`` (SI units, joint side)."""
+
+    def __init__(
+        self,
+        joints: dict[str, float] | None = None,
+        inertia_kg_m2: float = 0.02,
+        damping_nm_s: float = 0.02,
+        load_torque_nm: float = 0.0,
+    ) -> None:
+        self.joints = {name: _Joint(q=q0) for name, q0 in (joints or {"knee": 0.0}).items()}
+        self.inertia_kg_m2 = inertia_kg_m2
+        self.damping_nm_s = damping_nm_s
+        self.load_torque_nm = load_torque_nm
+        self.torque_calls = 0
+        self.time_s = 0.0
+
+    def joint_state(self, name: str) -> tuple[float, float]:
+        j = self.joints[name]
+        return j.q, j.qd
+
+    def set_joint_torque(self, name: str, tau_nm: float) -> None:
+        if not math.isfinite(tau_nm):
+            raise ValueError(f"non-finite torque {tau_nm!r}")
+        self.joints[name].tau = tau_nm
+        self.torque_calls += 1
+
+    def torque(self, name: str) -> float:
+        return self.joints[name].tau
+
+    def set_state(self, name: str, q: float, qd: float = 0.0) -> None:
+        j = self.joints[name]
+        j.q, j.qd = q, qd
+
+    def step(self, dt_s: float) -> None:
+        for j in self.joints.values():
+            qdd = (j.tau + self.load_torque_nm - self.damping_nm_s * j.qd) / self.inertia_kg_m2
+            j.qd += qdd * dt_s
+            j.q += j.qd * dt_s
+        self.time_s += dt_s
+
+
+@dataclass
+class FakeSensorSource:
+    """A range and two switches set by the test; counts how often each is read."""
+
+    range_value: float | None = 1.0
+    foot: bool = False
+    shin: bool = False
+    range_reads: int = field(default=0, init=False)
+    contact_reads: int = field(default=0, init=False)
+
+    def range_m(self) -> float | None:
+        self.range_reads += 1
+        return self.range_value
+
+    def contacts(self) -> tuple[bool, bool]:
+        self.contact_reads += 1
+        return self.foot, self.shin
