@@ -5,6 +5,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from controller.encoder import RangeEncoderConfig
+from controller.learner import LearnerConfig
+from controller.range_filter import RangeFilterConfig
+from controller.reflexes import ReflexConfig
+
 
 def _check(name: str, value: float, lo: float, hi: float, unit: str) -> None:
     if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
@@ -143,6 +148,11 @@ class ControllerConfig:
         rate_hz: control loop rate [Hz]; default 500.
         axes: the hip and knee axes (see :class:`AxisConfig`).
         sensor_node_id: the sensor board's node id; default 16.
+        range_filter: the Kalman filter on the range readings.
+        encoder: the range encoder's cells.
+        learner: gated memory, traces and learning rule.
+        reflexes: contact reflexes and the lift reflex.
+        sensor_offset_x_m: the range sensor's origin ahead of the hip [m]; default 0.20.
         heartbeat_timeout_s: a node silent this long is lost [s]; default 0.35 (3.5 periods).
         bringup_timeout_s: give up bringing the axes up after this long [s]; default 5.0.
         late_factor: a tick whose measured period exceeds this many nominal periods is late;
@@ -155,6 +165,11 @@ class ControllerConfig:
     geometry: LegGeometry = LegGeometry()
     cpg: CpgConfig = CpgConfig()
     gait: GaitConfig = GaitConfig()
+    range_filter: RangeFilterConfig = RangeFilterConfig()
+    encoder: RangeEncoderConfig = RangeEncoderConfig()
+    learner: LearnerConfig = LearnerConfig()
+    reflexes: ReflexConfig = ReflexConfig()
+    sensor_offset_x_m: float = 0.20
     sensor_node_id: int = 16
     heartbeat_timeout_s: float = 0.35
     bringup_timeout_s: float = 5.0

@@ -7,7 +7,9 @@ a tick whose measured period exceeds ``late_factor`` periods is counted in ``lat
 
 A tick: drain the bus, update the supervisor, then by phase: hold (arming), ramp, or walk
 (CPG -> premotor burst length -> foot trajectory -> inverse kinematics -> muscle low-pass ->
-Set_Input_Pos for each axis).
+Set_Input_Pos for each axis). While walking, every tick also runs the range filter and the
+contact reflexes; every step onset gates the encoded range into the premotor's memory and sets
+the lift reflex's amplitude for the coming swing.
 """
 
 from __future__ import annotations
@@ -22,9 +24,13 @@ from controller.bus_io import BusIO
 from controller.config import ControllerConfig
 from controller.cpg import CpgOutput, RingOscillator
 from controller.gait import FootTrajectory
-from controller.kinematics import inverse
+from controller.encoder import RangeEncoder
+from controller.kinematics import forward, inverse
+from controller.learner import AdaptivePremotor
 from controller.muscle import LowPass
-from controller.premotor import ConstantBurst, Premotor
+from controller.premotor import Premotor
+from controller.range_filter import RangeFilter
+from controller.reflexes import ContactReflexes, Reflex, lift_amplitude
 from controller.sensors import SensorLink
 from controller.supervisor import Phase, Supervisor
 from protocol import AxisState, BusContract, ControlMode, InputMode
@@ -39,6 +45,10 @@ class StepRecord:
         onset_s: time of the step onset (stance start) [s].
         burst_s: burst length commanded when the swing of this cycle began [s] (NaN until then).
         swing_s: measured swing duration [s] (NaN until the next onset).
+        gated_range_m: the filtered range gated at the onset [m] (None: no target in view).
+        cell: the encoder cell gated into memory (None: none).
+        modulation_s: the gated cell's weight, the burst change the gate asked for [s].
+        amplitude: the CPG amplitude for this cycle (above 1: the lift reflex fired).
     """
 
     index: int
@@ -46,6 +56,10 @@ class StepRecord:
     burst_s: float = math.nan
     swing_s: float = math.nan
     swing_start_s: float = math.nan
+    gated_range_m: float | None = None
+    cell: int | None = None
+    modulation_s: float = 0.0
+    amplitude: float = 1.0
 
 
 @dataclass
@@ -55,6 +69,7 @@ class LoopStats:
     late_ticks: int = 0
     max_period_s: float = 0.0
     steps: list[StepRecord] = field(default_factory=list)
+    reflexes: list[Reflex] = field(default_factory=list)
 
 
 class ControlLoop:
@@ -69,7 +84,13 @@ class ControlLoop:
         self.io = BusIO(bus, contract, self.axes, self.sensors)
         self.supervisor = Supervisor(self.axes, self.sensors, config.heartbeat_timeout_s, config.bringup_timeout_s)
         self.cpg = RingOscillator(config.cpg)
-        self.premotor = premotor or ConstantBurst(config.cpg.burst_s)
+        self.encoder = RangeEncoder(config.encoder)
+        self.range_filter = RangeFilter(config.range_filter)
+        self.reflexes = ContactReflexes(config.reflexes)
+        self.premotor: Premotor = premotor or AdaptivePremotor(
+            self.encoder.n_cells, config.cpg.burst_s, config.learner
+        )
+        self._range_samples_seen = 0
         self.trajectory = FootTrajectory(config.gait, config.cpg, config.geometry)
         self.muscles = {a.name: LowPass(config.gait.muscle_tau_s) for a in self.axes}
         self.stats = LoopStats()
@@ -142,14 +163,42 @@ class ControlLoop:
                 self.muscles[a.name].reset(self._ramp_to[a.name])
             self.supervisor.enter(Phase.WALK, now_s)
 
+    def _sense(self, now_s: float) -> None:
+        """Feed the range filter: predict every tick, correct on each new range sample."""
+        f = self.range_filter
+        f.predict(now_s)
+        s = self.sensors
+        if s.range_samples != self._range_samples_seen:
+            self._range_samples_seen = s.range_samples
+            f.reading(s.range_m, s.range_valid, s.range_t_s)
+
+    def foot_height_m(self) -> float:
+        """Foot height above the ground from the encoders (NaN before the first reading)."""
+        g = self.config.geometry
+        _x, z = forward(g, self.hip.pos_rad, self.knee.pos_rad)
+        return z + g.hip_height_m - g.foot_radius_m
+
+    def _gate(self, now_s: float) -> StepRecord:
+        gated = self.range_filter.estimate_m
+        cell = self.encoder.cell(gated)
+        self.premotor.on_step_onset(now_s, cell)
+        self.cpg.amplitude = lift_amplitude(self.config.reflexes, gated)
+        modulation = getattr(self.premotor, "gated_weight", lambda: 0.0)()
+        return StepRecord(index=len(self.stats.steps), onset_s=now_s, gated_range_m=gated, cell=cell,
+                          modulation_s=modulation, amplitude=self.cpg.amplitude)
+
     def _walk(self, now_s: float, dt: float) -> None:
+        self._sense(now_s)
         out = self.cpg.step(dt)
         steps = self.stats.steps
         if out.onset:
             if steps and not math.isnan(steps[-1].swing_start_s):
                 steps[-1].swing_s = now_s - steps[-1].swing_start_s
-            steps.append(StepRecord(index=len(steps), onset_s=now_s))
-            self.premotor.on_step_onset(now_s, self)
+            steps.append(self._gate(now_s))
+        reflex = self.reflexes.update(now_s, out, self.sensors.foot, self.sensors.shin, self.foot_height_m())
+        if reflex is not None:
+            self.stats.reflexes.append(reflex)
+            self.premotor.on_reflex(reflex.kind, now_s)
         burst = self.cpg.set_burst_s(self.premotor.burst_s(now_s))
         if out.flexing and not self._was_flexing and steps:
             steps[-1].burst_s = burst

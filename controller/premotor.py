@@ -1,28 +1,20 @@
 """The premotor module's interface: what sets the CPG's burst length.
 
-:class:`ConstantBurst` is the walking skeleton's (a fixed burst length); the learner of the
-Elegant Stepping model implements the same two methods.
+The learner of the Elegant Stepping model (:class:`controller.learner.AdaptivePremotor`)
+implements it; so can any other stride policy (a baseline, a planner) that the loop should drive.
 """
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Protocol
 
 
 class Premotor(Protocol):
-    def on_step_onset(self, now_s: float, loop: Any) -> None:
-        """Called on the tick the CPG's step-onset signal fires."""
+    def on_step_onset(self, now_s: float, cell: int | None) -> None:
+        """The gate: called on the tick the CPG's step-onset signal fires, with the encoder's cell."""
 
     def burst_s(self, now_s: float) -> float:
         """The burst length [s] the CPG should use now (the CPG clips it to its safe bounds)."""
 
-
-class ConstantBurst:
-    def __init__(self, burst_s: float) -> None:
-        self.value_s = burst_s
-
-    def on_step_onset(self, now_s: float, loop: Any) -> None:
-        pass
-
-    def burst_s(self, now_s: float) -> float:
-        return self.value_s
+    def on_reflex(self, kind: str, now_s: float) -> None:
+        """A contact reflex fired: ``"extension"`` or ``"placement"``."""

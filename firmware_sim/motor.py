@@ -140,6 +140,20 @@ class MotorJoint:
         self.torque_estimate_nm = 0.0
 
     @property
+    def transmission(self) -> Transmission:
+        return self._transmission
+
+    @transmission.setter
+    def transmission(self, transmission: Transmission) -> None:
+        # The per-step conversions below inline the Transmission formulas with these constants
+        # (same operations in the same order, so the same floats as the Transmission methods).
+        self._transmission = transmission
+        self._zero_offset_rev = transmission.zero_offset_rev
+        self._gear_ratio = transmission.gear_ratio
+        self._direction = transmission.direction
+        self._dir_gear = transmission.direction * transmission.gear_ratio
+
+    @property
     def motor_params(self) -> MotorParams:
         return self.params
 
@@ -151,8 +165,9 @@ class MotorJoint:
     def motor_state(self) -> tuple[float, float]:
         """``(pos_rev, vel_rev_s)`` of the motor shaft, read from the plant joint."""
         q, qd = self.plant.joint_state(self.joint_name)
-        tr = self.transmission
-        return tr.joint_to_motor_rev(q), tr.joint_vel_to_motor(qd)
+        # Transmission.joint_to_motor_rev and .joint_vel_to_motor, inlined (hot path).
+        dir_gear = self._dir_gear
+        return self._zero_offset_rev + dir_gear * q / TWO_PI, dir_gear * qd / TWO_PI
 
     def apply_motor_torque(self, tau_nm: float, vel_rev_s: float | None = None) -> float:
         """Apply rotor torque ``tau_nm`` (clamped to ±Kt·current limit) to the joint.
@@ -164,7 +179,8 @@ class MotorJoint:
             tau_nm = 0.0
         tau_max = self._tau_max
         applied = tau_max if tau_nm > tau_max else (-tau_max if tau_nm < -tau_max else tau_nm)
-        self.plant.set_joint_torque(self.joint_name, self.transmission.motor_torque_to_joint(applied))
+        # Transmission.motor_torque_to_joint, inlined (hot path).
+        self.plant.set_joint_torque(self.joint_name, applied * self._gear_ratio * self._direction)
         if vel_rev_s is None:
             vel_rev_s = self.transmission.joint_vel_to_motor(self.plant.joint_state(self.joint_name)[1])
         self._tau_requested = tau_nm

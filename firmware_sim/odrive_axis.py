@@ -120,6 +120,12 @@ _GET_CMDS = (
 # Commands whose payload may be shorter than the DBC length: minimum accepted length.
 _MIN_LEN_OVERRIDE = {Cmd.ESTOP: 0, Cmd.CLEAR_ERRORS: 0, Cmd.REBOOT: 0}
 
+# Enum members used on the per-step hot path, bound once: ``AxisState.CLOSED_LOOP_CONTROL`` is a
+# class-attribute lookup through the enum machinery (~0.2 us each on Python 3.11).
+_CLOSED_LOOP = AxisState.CLOSED_LOOP_CONTROL
+_TORQUE_CONTROL = ControlMode.TORQUE_CONTROL
+_POSITION_CONTROL = ControlMode.POSITION_CONTROL
+
 
 def _finite(*values: float) -> bool:
     for v in values:
@@ -268,6 +274,13 @@ class SimOdriveAxis:
         self._enc_codec = self._codecs[Cmd.GET_ENCODER_ESTIMATES]
         self._hb_id = self._arb_ids[Cmd.HEARTBEAT]
         self._enc_id = self._arb_ids[Cmd.GET_ENCODER_ESTIMATES]
+        # The config is frozen: its periods and timeout, read on every step, as plain attributes.
+        self._hb_period_s = config.heartbeat_period_s
+        self._enc_period_s = config.encoder_period_s
+        self._watchdog_timeout_s = config.watchdog_timeout_s
+        self._unpack_input_pos = self._codecs[Cmd.SET_INPUT_POS].unpack
+        self._hb_last_values: tuple | None = None
+        self._hb_last_payload = b""
 
         self.stats: dict = {
             "rx": {codec.name: 0 for codec in self._codecs.values()},
@@ -351,12 +364,8 @@ class SimOdriveAxis:
         self._last_feed_s = now_s
 
     def _check_watchdog(self, now_s: float) -> None:
-        timeout = self.config.watchdog_timeout_s
-        if (
-            timeout > 0.0
-            and self.state is AxisState.CLOSED_LOOP_CONTROL
-            and now_s - self._last_feed_s > timeout
-        ):
+        timeout = self._watchdog_timeout_s
+        if timeout > 0.0 and self.state is _CLOSED_LOOP and now_s - self._last_feed_s > timeout:
             self._disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
 
     # ------------------------------------------------------------------ receive
@@ -454,7 +463,7 @@ class SimOdriveAxis:
         return True
 
     def _on_set_input_pos(self, data, now_s) -> bool:
-        pos, vel_ff, torque_ff = self._codecs[Cmd.SET_INPUT_POS].unpack(data)
+        pos, vel_ff, torque_ff = self._unpack_input_pos(data)
         if not math.isfinite(pos):
             return False
         c = self.config
@@ -560,11 +569,14 @@ class SimOdriveAxis:
     # ------------------------------------------------------------------ control loop
     def update(self, now_s: float, dt_s: float) -> None:
         """One control step at physics rate: watchdog, then the cascade, then the motor torque."""
-        if self.state is AxisState.CLOSED_LOOP_CONTROL:
-            self._check_watchdog(now_s)
+        if self.state is _CLOSED_LOOP:
+            # _check_watchdog, inlined: this runs on every physics step.
+            timeout = self._watchdog_timeout_s
+            if timeout > 0.0 and now_s - self._last_feed_s > timeout:
+                self._disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
         motor = self.motor
         raw_pos, vel = motor.motor_state()
-        if self.state is not AxisState.CLOSED_LOOP_CONTROL:
+        if self.state is not _CLOSED_LOOP:
             self.torque_setpoint_nm = 0.0
             self.vel_integrator_nm = 0.0
             motor.apply_motor_torque(0.0, vel)
@@ -572,8 +584,11 @@ class SimOdriveAxis:
         pos = raw_pos + self.pos_offset_rev
         mode = self.control_mode
         vel_limit = self.vel_limit_rev_s
-        torque_limit = self.torque_limit_nm
-        if mode is ControlMode.TORQUE_CONTROL:
+        # torque_limit_nm, inlined: Kt * min(runtime current limit, hardware limit).
+        current_limit = self.current_limit_a
+        hw_limit = self._hw_current_limit_a
+        torque_limit = self._kt * (hw_limit if hw_limit < current_limit else current_limit)
+        if mode is _TORQUE_CONTROL:
             torque = self.input_torque_nm
             # ODrive's enable_torque_mode_vel_limit: no torque that pushes further past the limit.
             t_max = (vel_limit - vel) * self.vel_gain
@@ -589,7 +604,7 @@ class SimOdriveAxis:
             self.vel_integrator_nm = 0.0
         else:
             vel_des = self.input_vel_rev_s
-            if mode is ControlMode.POSITION_CONTROL:
+            if mode is _POSITION_CONTROL:
                 vel_des += self.pos_gain * (self.input_pos_rev - pos)
             if vel_des > vel_limit:
                 vel_des = vel_limit
@@ -616,13 +631,22 @@ class SimOdriveAxis:
         resynchronised to ``now + period`` when more than a period behind.
         """
         out: list[can.Message] = []
-        c = self.config
-        if c.heartbeat_period_s > 0.0 and now_s >= self._next_hb - _SCHEDULE_EPS_S:
-            nxt = self._next_hb + c.heartbeat_period_s
-            self._next_hb = nxt if nxt > now_s else now_s + c.heartbeat_period_s
-            out.append(self._frame(Cmd.HEARTBEAT, self._hb_codec, self._heartbeat_values()))
-        if c.encoder_period_s > 0.0 and now_s >= self._next_enc - _SCHEDULE_EPS_S:
-            nxt = self._next_enc + c.encoder_period_s
-            self._next_enc = nxt if nxt > now_s else now_s + c.encoder_period_s
-            out.append(self._frame(Cmd.GET_ENCODER_ESTIMATES, self._enc_codec, self.encoder_estimates()))
+        period = self._hb_period_s
+        if period > 0.0 and now_s >= self._next_hb - _SCHEDULE_EPS_S:
+            nxt = self._next_hb + period
+            self._next_hb = nxt if nxt > now_s else now_s + period
+            self._tx[self._hb_name] += 1
+            values = self._heartbeat_values()
+            # Heartbeat has a 1-bit field, so it packs through cantools (~10 us); its values (all
+            # ints) rarely change, so reuse the last payload while they are the same.
+            if values != self._hb_last_values:
+                self._hb_last_payload = self._hb_codec.pack(*values)
+                self._hb_last_values = values
+            out.append(data_frame(self._hb_id, self._hb_last_payload))
+        period = self._enc_period_s
+        if period > 0.0 and now_s >= self._next_enc - _SCHEDULE_EPS_S:
+            nxt = self._next_enc + period
+            self._next_enc = nxt if nxt > now_s else now_s + period
+            self._tx[self._enc_name] += 1
+            out.append(data_frame(self._enc_id, self._enc_codec.pack(*self.encoder_estimates())))
         return out

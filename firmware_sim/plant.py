@@ -34,8 +34,9 @@ class RigConfig:
     Attributes:
         physics_hz: physics steps per simulated second [Hz]; default 1000.
         rail_speed_m_s: carriage speed along the rail [m/s]; default 0.5.
-        sensor_offset_x_m: range sensor origin ahead of the hip axis [m]; default 0.15 (the boom).
-        sensor_height_m: range sensor origin above the ground [m]; default 0.06.
+        sensor_offset_x_m: range sensor origin ahead of the hip axis [m]; default 0.20 (the boom).
+        sensor_height_m: range sensor origin above the ground [m]; default 0.03 (any obstacle taller
+            than 3 cm is seen at every distance).
         sensor_aim_m: horizontal distance at which the sensor's ray meets flat ground [m];
             default 3.2 (just beyond the sensor's 3 m range, so flat ground reads "no target").
         gravity_m_s2: gravity [m/s^2]; default 9.81.
@@ -45,8 +46,8 @@ class RigConfig:
 
     physics_hz: float = 1000.0
     rail_speed_m_s: float = 0.5
-    sensor_offset_x_m: float = 0.15
-    sensor_height_m: float = 0.06
+    sensor_offset_x_m: float = 0.20
+    sensor_height_m: float = 0.03
     sensor_aim_m: float = 3.2
     gravity_m_s2: float = 9.81
     solver_iterations: int = 20
@@ -140,6 +141,20 @@ class RigPlant:
         self._p.setJointMotorControl2(
             self.robot, self._rail, pybullet.VELOCITY_CONTROL, targetVelocity=speed_m_s, force=2000.0
         )
+
+    GROUND_END_X_M = 399.0
+
+    def rewind_rail(self, distance_m: float) -> None:
+        """Move the carriage (and the leg with it) back along the rail, keeping every joint's
+        state: the treadmill rig's way of running forever on finite ground. Call it only while
+        the foot is in the air and no obstacle is placed."""
+        if self._obstacles:
+            raise RuntimeError("rewind the rail only with no obstacle placed")
+        p = self._p
+        x, v = p.getJointState(self.robot, self._rail)[:2]
+        p.resetJointState(self.robot, self._rail, x - distance_m, v)
+        self.set_rail_speed(self.rail_speed_m_s)
+        self._contacts_t_s = -1.0
 
     def add_obstacle(self, obstacle: Obstacle) -> int:
         path = Path(self._urdf_dir.name) / f"obstacle_{obstacle.height_m:.4f}_{obstacle.depth_m:.4f}.urdf"

@@ -145,6 +145,10 @@ class SensorBoard:
         self._next_range = -math.inf
         self._next_contacts = -math.inf
         self._next_hb = -math.inf
+        # The config is frozen: its periods, read on every step, as plain attributes.
+        self._range_period_s = config.range_period_s
+        self._contacts_period_s = config.contacts_period_s
+        self._hb_period_s = config.heartbeat_period_s
 
     # ------------------------------------------------------------------ frames
     def _sample_range(self) -> tuple[float, int, int]:
@@ -193,21 +197,20 @@ class SensorBoard:
     def due(self, now_s: float) -> list[can.Message]:
         """Frames due at ``now_s``: range sample, contacts (cyclic or changed), heartbeat."""
         out: list[can.Message] = []
-        cfg = self.config
-        period = cfg.range_period_s
+        period = self._range_period_s
         if period > 0.0 and now_s >= self._next_range - _SCHEDULE_EPS_S:
             nxt = self._next_range + period
             self._next_range = nxt if nxt > now_s else now_s + period
             out.append(self._range_frame(self._sample_range()))
         contacts = self._read_contacts()
-        period = cfg.contacts_period_s
+        period = self._contacts_period_s
         cyclic = period > 0.0 and now_s >= self._next_contacts - _SCHEDULE_EPS_S
         if cyclic:
             nxt = self._next_contacts + period
             self._next_contacts = nxt if nxt > now_s else now_s + period
         if cyclic or contacts != self._last_contacts:
             out.append(self._contacts_frame(contacts))
-        period = cfg.heartbeat_period_s
+        period = self._hb_period_s
         if period > 0.0 and now_s >= self._next_hb - _SCHEDULE_EPS_S:
             nxt = self._next_hb + period
             self._next_hb = nxt if nxt > now_s else now_s + period

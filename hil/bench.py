@@ -8,6 +8,7 @@ Figures (keys of the JSON):
   codec_us            encode and decode of one frame (compiled struct codec), beside cantools's
   bus_load            fraction of a 1 Mbit/s bus used at the default rates while walking, from
                       bit-exact lengths (stuffing included) of every frame seen on the bus
+  learning            learning trials per minute through the whole stack
 No figure here is asserted in a test: these machines are shared and noisy; compare ratios.
 """
 
@@ -124,7 +125,16 @@ def bench_bus_load(seconds: float, seed: int = 0, bitrate: int = 1_000_000) -> d
     }
 
 
-def run_bench(seconds: float = 10.0, seed: int = 0) -> dict[str, Any]:
+def bench_learning(trials: int, seed: int = 0) -> dict[str, Any]:
+    """Learning trials through the whole stack: trials per minute of wall time."""
+    from hil.learn import LearnConfig, run_learning
+
+    s = run_learning(LearnConfig(trials=trials, seed=seed))["summary"]
+    return {"trials_per_minute": s["trials_per_minute"], "trials": trials, "wall_s": s["wall_s"], "sim_s": s["sim_s"],
+            "projected_150_trials_s": 150 / s["trials_per_minute"] * 60.0}
+
+
+def run_bench(seconds: float = 10.0, seed: int = 0, learn_trials: int = 10) -> dict[str, Any]:
     bare = bench_bare_physics(seconds)
     lock = bench_lockstep(seconds, seed)
     return {
@@ -134,6 +144,7 @@ def run_bench(seconds: float = 10.0, seed: int = 0) -> dict[str, Any]:
         "tick_cost_us": lock["tick_cost_us"],
         "codec_us": bench_codec(),
         "bus_load": bench_bus_load(min(seconds, 5.0), seed),
+        "learning": bench_learning(learn_trials, seed),
         "detail": {"lockstep": {k: v for k, v in lock.items() if k != "tick_cost_us"}, "bare_physics": bare},
         "machine": {"python": platform.python_version(), "platform": platform.platform(), "cpus": _cpus()},
     }

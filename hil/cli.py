@@ -51,10 +51,41 @@ def cmd_walk(args: argparse.Namespace) -> int:
     return 0 if metrics["phase"] == "walk" else 1
 
 
+def cmd_learn(args: argparse.Namespace) -> int:
+    from hil.learn import LearnConfig, run_learning
+
+    config = LearnConfig(
+        trials=args.trials,
+        seed=args.seed,
+        obstacle_height_m=args.obstacle_height_m,
+        obstacle_depth_m=args.obstacle_depth_m,
+        range_noise_m=args.range_noise_m,
+        learning=not args.no_learning,
+    )
+    metrics = run_learning(config, out_dir=args.out, progress=not args.quiet, figures=not args.no_figures)
+    s = metrics["summary"]
+    late = "n/a" if s["mistakes_101_150"] is None else s["mistakes_101_150"]
+    early = "n/a" if s["success_21_40"] is None else f"{s['success_21_40']:.0%}"
+    print(
+        f"{'learning' if config.learning else 'no learning'}, seed {config.seed}: success {s['success_rate']:.0%} "
+        f"over {s['trials']} trials, {early} in trials 21-40, {late} mistakes in 101-150; "
+        f"{s['sim_s']:.0f} s simulated in {s['wall_s']:.0f} s ({s['trials_per_minute']:.0f} trials/min); "
+        f"wrote {args.out}/metrics.json and weights.npz"
+    )
+    return 0
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    from hil.analysis import analyze
+
+    _write_json(args.json, analyze(args.folders))
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from hil.bench import run_bench
 
-    result = run_bench(seconds=args.seconds, seed=args.seed)
+    result = run_bench(seconds=args.seconds, seed=args.seed, learn_trials=args.learn_trials)
     _write_json(args.json, result)
     return 0
 
@@ -72,9 +103,27 @@ def build_parser() -> argparse.ArgumentParser:
     walk.add_argument("--quiet", action="store_true", help="no progress bar")
     walk.set_defaults(func=cmd_walk)
 
+    learn = sub.add_parser("learn", help="learning trials: approach an obstacle and step over it, again and again")
+    learn.add_argument("--trials", type=int, default=150, help="number of approaches (default 150)")
+    learn.add_argument("--seed", type=int, default=0, help="seed of start distances and sensor noise (default 0)")
+    learn.add_argument("--out", required=True, help="output folder for metrics.json and weights.npz")
+    learn.add_argument("--obstacle-height-m", type=_positive(float), default=0.08, help="obstacle height [m] (0.08)")
+    learn.add_argument("--obstacle-depth-m", type=_positive(float), default=0.10, help="obstacle depth [m] (0.10)")
+    learn.add_argument("--range-noise-m", type=float, default=0.02, help="range sensor noise, 1 sigma [m] (0.02)")
+    learn.add_argument("--no-learning", action="store_true", help="freeze the weights at zero (the baseline)")
+    learn.add_argument("--no-figures", action="store_true", help="skip DIR/figures/")
+    learn.add_argument("--quiet", action="store_true", help="no progress bar")
+    learn.set_defaults(func=cmd_learn)
+
+    analyze = sub.add_parser("analyze", help="acceptance figures from one or more learn output folders")
+    analyze.add_argument("folders", nargs="+", help="learn output folders (one per seed)")
+    analyze.add_argument("--json", default="-", help="where to write the figures (default: stdout)")
+    analyze.set_defaults(func=cmd_analyze)
+
     bench = sub.add_parser("bench", help="performance figures as JSON, ratios measured side by side")
     bench.add_argument("--seconds", type=_positive(float), default=10.0, help="simulated seconds per figure")
     bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument("--learn-trials", type=int, default=10, help="learning trials timed (default 10)")
     bench.add_argument("--json", default="-", help="where to write the figures (default: stdout)")
     bench.set_defaults(func=cmd_bench)
     return parser

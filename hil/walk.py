@@ -27,6 +27,11 @@ def run_walk(seconds: float, seed: int = 0, burst_s: float | None = None, *, pro
              config: LockstepConfig | None = None) -> dict[str, Any]:
     """Walk for ``seconds`` of simulated time and return the metrics (see ``elegant-stepping walk``)."""
     cfg = config or walk_config(seed, burst_s)
+    from firmware_sim.plant import RigPlant
+
+    if seconds * cfg.rig.rail_speed_m_s > RigPlant.GROUND_END_X_M - 1.0:
+        raise ValueError(f"a {seconds} s walk at {cfg.rig.rail_speed_m_s} m/s would run off the "
+                         f"{RigPlant.GROUND_END_X_M:.0f} m of ground; walk for less time")
     wall0 = time.perf_counter()
     with Lockstep(cfg) as ls:
         tracker = FootfallTracker(ls.plant)

@@ -73,6 +73,12 @@ class MessageCodec:
             for i, ((scale, offset, is_float), limits) in enumerate(zip(self._scales, self._int_limits))
             if not is_float
         )
+        # Hot-path helpers: the signal count and, for unpack, (index, scale, offset) of every
+        # integer signal (converted to physical units; float signals pass through as decoded).
+        self._n_signals = len(signals)
+        self._int_scaling = tuple((i, scale, offset) for i, scale, offset, _lo, _hi in self._int_fields)
+        self._pack_raw = self._struct.pack if self._struct is not None else None
+        self._unpack_raw = self._struct.unpack_from if self._struct is not None else None
 
     @staticmethod
     def _raw_limits(sig) -> tuple[float, float] | None:
@@ -103,35 +109,42 @@ class MessageCodec:
         return struct.Struct(fmt)
 
     def pack(self, *values: float) -> bytes:
-        if len(values) != len(self._scales):
-            raise ValueError(f"{self.name} takes {len(self._scales)} signals, got {len(values)}")
-        if self._struct is None:
+        if len(values) != self._n_signals:
+            raise ValueError(f"{self.name} takes {self._n_signals} signals, got {len(values)}")
+        pack_raw = self._pack_raw
+        if pack_raw is None:
             return self.encode(**dict(zip(self.signal_names, values)))
         if self._float_only:
-            return self._struct.pack(*values)
+            return pack_raw(*values)
         raw = list(values)
+        isfinite = math.isfinite
         for i, scale, offset, lo, hi in self._int_fields:
             value = values[i]
             r = (value - offset) / scale
-            if not math.isfinite(r):
+            if not isfinite(r):
                 raise ValueError(f"{self.name}: non-finite value {value!r} for an integer signal")
             r = round(r)
             if r < lo or r > hi:
                 raise ValueError(f"{self.name}: value {value!r} outside the signal's raw range {(lo, hi)}")
             raw[i] = r
-        return self._struct.pack(*raw)
+        return pack_raw(*raw)
 
     def unpack(self, data: bytes | bytearray) -> tuple[float, ...]:
         """Physical values in signal order. Raises ``ValueError`` on a short payload."""
         if len(data) < self.dlc:
             raise ValueError(f"{self.name}: payload of {len(data)} bytes, DLC {self.dlc} expected")
-        if self._struct is None:
+        unpack_raw = self._unpack_raw
+        if unpack_raw is None:
             decoded = self.message.decode(bytes(data[: self.dlc]), decode_choices=False, scaling=True)
             return tuple(decoded[n] for n in self.signal_names)
-        raw = self._struct.unpack_from(data)
+        raw = unpack_raw(data)
         if self._identity:
             return raw
-        return tuple(r if is_float else r * scale + offset for r, (scale, offset, is_float) in zip(raw, self._scales))
+        # Convert only the integer signals in place (cheaper than a generator over every signal).
+        values = list(raw)
+        for i, scale, offset in self._int_scaling:
+            values[i] = values[i] * scale + offset
+        return tuple(values)
 
     def encode(self, **signals: float) -> bytes:
         if self._struct is not None:

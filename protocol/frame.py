@@ -35,8 +35,9 @@ class Frame(can.Message):
 
 def data_frame(arbitration_id: int, data: bytes | bytearray) -> Frame:
     """A standard-id classic data frame (built directly: this runs thousands of times a second)."""
-    if not 0 <= arbitration_id <= 0x7FF or len(data) > 8:
-        raise ValueError(f"not a standard CAN frame: id {arbitration_id:#x}, {len(data)} bytes")
+    dlc = len(data)
+    if not 0 <= arbitration_id <= 0x7FF or dlc > 8:
+        raise ValueError(f"not a standard CAN frame: id {arbitration_id:#x}, {dlc} bytes")
     f = Frame.__new__(Frame)
     f.timestamp = 0.0
     f.arbitration_id = arbitration_id
@@ -44,7 +45,7 @@ def data_frame(arbitration_id: int, data: bytes | bytearray) -> Frame:
     f.is_remote_frame = False
     f.is_error_frame = False
     f.channel = None
-    f.dlc = len(data)
+    f.dlc = dlc
     f.data = bytearray(data)
     f.is_fd = False
     f.is_rx = True

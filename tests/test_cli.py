@@ -41,7 +41,7 @@ def test_burst_outside_the_cpg_bounds_is_a_clear_error(capsys):
 
 def test_bench_reports_each_figure_beside_its_reference(tmp_path):
     out = tmp_path / "bench.json"
-    assert main(["bench", "--seconds", "2", "--json", str(out)]) == 0
+    assert main(["bench", "--seconds", "2", "--learn-trials", "2", "--json", str(out)]) == 0
     b = json.loads(out.read_text())
     assert b["lockstep_rtf"] > 0 and b["bare_physics_rtf"] > 0
     assert b["lockstep_vs_bare"] == pytest.approx(b["lockstep_rtf"] / b["bare_physics_rtf"])
@@ -53,3 +53,4 @@ def test_bench_reports_each_figure_beside_its_reference(tmp_path):
     assert load["frames_per_s_by_message"]["Set_Input_Pos"] == pytest.approx(1000, rel=0.01)
     assert 100 < load["bits_per_frame"] < 135
     assert load["fraction"] == pytest.approx(load["frames_per_s"] * load["bits_per_frame"] / 1e6)
+    assert b["learning"]["trials"] == 2 and b["learning"]["trials_per_minute"] > 0

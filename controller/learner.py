@@ -1,0 +1,148 @@
+"""The adaptive premotor module of the Elegant Stepping model: gated memory, traces, learning.
+
+Temporal gating: at each step onset the range encoder's active cell is gated one-to-one into
+short-term memory (STM). The STM holds that cell at 1 and decays as ``exp(-t / stm_tau_s)`` until
+the next gate replaces it (a gate with no target in view clears it).
+
+Premotor output: ``burst = base + sum_i w_i * STM_i(t)``, read by the CPG at every tick and
+clipped by it to its safe bounds; with one cell active this is ``base + w_k * exp(-t/tau)``. It
+is smooth within a step, and it returns to the base value once the obstacle is out of view.
+
+Synaptic traces: a synapse the STM activated keeps a trace that decays as
+``exp(-t / trace_tau_s)`` (each gate adds 1 to its cell's trace). On a reflex every weight moves
+by ``learning_rate_s * trace_i``: up for an extension reflex (longer strides), down for a
+placement reflex (shorter strides). The traces of the last few gates are alive when the crossing
+goes wrong, the most recent the strongest: credit flows back over the last steps without any
+model of the world.
+
+Modelling choices the paper leaves open: one-hot STM (the encoder's cells do not overlap); the
+STM and trace time constants; weights bounded to ``+-weight_limit_s`` so no single cell can ask
+for a burst the CPG would clip anyway.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LearnerConfig:
+    """Attributes:
+    stm_tau_s: decay time constant of the short-term memory [s]; default 1.0 (the swing that
+        the gate modulates starts 0.4 s after it and ends about 0.7 s after it, when the memory
+        holds 0.67 to 0.50 of its gated value).
+    trace_tau_s: decay time constant of the synaptic traces [s]; default 2.5 (a reflex at the
+        crossing still finds the traces of the last three gates at 0.76, 0.57 and 0.43 of their
+        peak: credit reaches the decisions that placed the last footfall).
+    learning_rate_s: weight change per unit trace per reflex [s]; default 0.3.
+    weight_limit_s: bound on each weight's magnitude [s]; default 0.4.
+    learning: False freezes the weights (the no-learning baseline); default True.
+    """
+
+    stm_tau_s: float = 1.0
+    trace_tau_s: float = 2.5
+    learning_rate_s: float = 0.3
+    weight_limit_s: float = 0.4
+    learning: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("stm_tau_s", "trace_tau_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0.01 <= value <= 60.0):
+                raise ValueError(f"learner.{name} must be in [0.01, 60] s, got {value!r}")
+        if not (math.isfinite(self.learning_rate_s) and 0.0 <= self.learning_rate_s <= 1.0):
+            raise ValueError(f"learner.learning_rate_s must be in [0, 1] s, got {self.learning_rate_s!r}")
+        if not (math.isfinite(self.weight_limit_s) and 0.0 < self.weight_limit_s <= 2.0):
+            raise ValueError(f"learner.weight_limit_s must be in (0, 2] s, got {self.weight_limit_s!r}")
+
+
+class GatedMemory:
+    """Short-term memory of one gated cell, decaying exponentially."""
+
+    def __init__(self, tau_s: float) -> None:
+        self.tau_s = tau_s
+        self.cell: int | None = None
+        self.gate_t_s = -math.inf
+
+    def gate(self, cell: int | None, now_s: float) -> None:
+        self.cell = cell
+        self.gate_t_s = now_s
+
+    def activity(self, now_s: float) -> float:
+        """STM activity of the gated cell now (0 when nothing is held)."""
+        if self.cell is None:
+            return 0.0
+        return math.exp(-(now_s - self.gate_t_s) / self.tau_s)
+
+
+class SynapticTraces:
+    """One decaying trace per synapse, decayed lazily to the time it is read."""
+
+    def __init__(self, n: int, tau_s: float) -> None:
+        self.tau_s = tau_s
+        self.values = np.zeros(n)
+        self.t_s = 0.0
+
+    def _decay_to(self, now_s: float) -> None:
+        if now_s > self.t_s:
+            self.values *= math.exp(-(now_s - self.t_s) / self.tau_s)
+            self.t_s = now_s
+
+    def activate(self, cell: int, now_s: float, amount: float = 1.0) -> None:
+        self._decay_to(now_s)
+        self.values[cell] += amount
+
+    def at(self, now_s: float) -> np.ndarray:
+        self._decay_to(now_s)
+        return self.values
+
+
+class AdaptivePremotor:
+    """Sets the CPG's burst length from gated memory; learns from reflexes (the Premotor protocol)."""
+
+    def __init__(self, n_cells: int, base_burst_s: float, config: LearnerConfig = LearnerConfig(),
+                 weights: np.ndarray | None = None) -> None:
+        self.config = config
+        self.base_burst_s = base_burst_s
+        if weights is None:
+            weights = np.zeros(n_cells)
+        weights = np.asarray(weights, dtype=float)
+        if weights.shape != (n_cells,) or not np.all(np.isfinite(weights)):
+            raise ValueError(f"weights must be {n_cells} finite numbers, got shape {weights.shape}")
+        self.weights = np.clip(weights, -config.weight_limit_s, config.weight_limit_s)
+        self.memory = GatedMemory(config.stm_tau_s)
+        self.traces = SynapticTraces(n_cells, config.trace_tau_s)
+        self.updates = 0
+
+    def on_step_onset(self, now_s: float, cell: int | None) -> None:
+        """The gate: the encoder's active cell (or none) into STM; its synapse's trace is activated."""
+        self.memory.gate(cell, now_s)
+        if cell is not None:
+            self.traces.activate(cell, now_s)
+
+    def modulation_s(self, now_s: float) -> float:
+        cell = self.memory.cell
+        if cell is None:
+            return 0.0
+        return float(self.weights[cell]) * self.memory.activity(now_s)
+
+    def burst_s(self, now_s: float) -> float:
+        return self.base_burst_s + self.modulation_s(now_s)
+
+    def gated_weight(self) -> float:
+        """The weight of the cell held in STM (0 when none): non-zero means the gate changes the burst."""
+        return 0.0 if self.memory.cell is None else float(self.weights[self.memory.cell])
+
+    def on_reflex(self, kind: str, now_s: float) -> None:
+        """Extension reflex: longer strides; placement reflex: shorter strides."""
+        if kind not in ("extension", "placement"):
+            raise ValueError(f"unknown reflex kind {kind!r}")
+        if not self.config.learning or self.config.learning_rate_s == 0.0:
+            return
+        sign = 1.0 if kind == "extension" else -1.0
+        self.weights += sign * self.config.learning_rate_s * self.traces.at(now_s)
+        np.clip(self.weights, -self.config.weight_limit_s, self.config.weight_limit_s, out=self.weights)
+        self.updates += 1
