@@ -135,7 +135,8 @@ class LearningRun:
         c, ls = self.config, self.ls
         plant, loop = ls.plant, ls.loop
         self._rewind_if_far()
-        near = plant.carriage_x_m + float(self.rng.uniform(c.start_min_m, c.start_max_m))
+        x0 = plant.carriage_x_m
+        near = x0 + float(self.rng.uniform(c.start_min_m, c.start_max_m))
         far = near + c.obstacle_depth_m
         plant.add_obstacle(Obstacle(near, c.obstacle_height_m, c.obstacle_depth_m))
         t0 = ls.t_s
@@ -159,7 +160,7 @@ class LearningRun:
         return {
             "index": index,
             "success": not contact,
-            "start_distance_m": near - (plant.carriage_x_m - (ls.t_s - t0) * plant.rail_speed_m_s),
+            "start_distance_m": near - x0,
             "reflexes": [
                 {"kind": r.kind, "t_s": r.t_s - t0, "cause": r.cause, "swing": r.swing, "phase": r.phase}
                 for r in loop.stats.reflexes[n_reflex0:]
