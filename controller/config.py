@@ -152,7 +152,6 @@ class ControllerConfig:
         encoder: the range encoder's cells.
         learner: gated memory, traces and learning rule.
         reflexes: contact reflexes and the lift reflex.
-        sensor_offset_x_m: the range sensor's origin ahead of the hip [m]; default 0.20.
         heartbeat_timeout_s: a node silent this long is lost [s]; default 0.35 (3.5 periods).
         bringup_timeout_s: give up bringing the axes up after this long [s]; default 5.0.
         late_factor: a tick whose measured period exceeds this many nominal periods is late;
@@ -169,7 +168,6 @@ class ControllerConfig:
     encoder: RangeEncoderConfig = RangeEncoderConfig()
     learner: LearnerConfig = LearnerConfig()
     reflexes: ReflexConfig = ReflexConfig()
-    sensor_offset_x_m: float = 0.20
     sensor_node_id: int = 16
     heartbeat_timeout_s: float = 0.35
     bringup_timeout_s: float = 5.0

@@ -44,7 +44,3 @@ class RangeEncoder:
             return None
         index = int(distance_m / self.config.cell_width_m)
         return index if index < self.n_cells else None
-
-    def centres_m(self) -> list[float]:
-        w = self.config.cell_width_m
-        return [(i + 0.5) * w for i in range(self.n_cells)]

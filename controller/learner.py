@@ -115,7 +115,6 @@ class AdaptivePremotor:
         self.weights = np.clip(weights, -config.weight_limit_s, config.weight_limit_s)
         self.memory = GatedMemory(config.stm_tau_s)
         self.traces = SynapticTraces(n_cells, config.trace_tau_s)
-        self.updates = 0
 
     def on_step_onset(self, now_s: float, cell: int | None) -> None:
         """The gate: the encoder's active cell (or none) into STM; its synapse's trace is activated."""
@@ -145,4 +144,3 @@ class AdaptivePremotor:
         sign = 1.0 if kind == "extension" else -1.0
         self.weights += sign * self.config.learning_rate_s * self.traces.at(now_s)
         np.clip(self.weights, -self.config.weight_limit_s, self.config.weight_limit_s, out=self.weights)
-        self.updates += 1

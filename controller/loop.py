@@ -183,9 +183,8 @@ class ControlLoop:
         cell = self.encoder.cell(gated)
         self.premotor.on_step_onset(now_s, cell)
         self.cpg.amplitude = lift_amplitude(self.config.reflexes, gated)
-        modulation = getattr(self.premotor, "gated_weight", lambda: 0.0)()
         return StepRecord(index=len(self.stats.steps), onset_s=now_s, gated_range_m=gated, cell=cell,
-                          modulation_s=modulation, amplitude=self.cpg.amplitude)
+                          modulation_s=self.premotor.gated_weight(), amplitude=self.cpg.amplitude)
 
     def _walk(self, now_s: float, dt: float) -> None:
         self._sense(now_s)
@@ -195,7 +194,7 @@ class ControlLoop:
             if steps and not math.isnan(steps[-1].swing_start_s):
                 steps[-1].swing_s = now_s - steps[-1].swing_start_s
             steps.append(self._gate(now_s))
-        reflex = self.reflexes.update(now_s, out, self.sensors.foot, self.sensors.shin, self.foot_height_m())
+        reflex = self.reflexes.update(now_s, out, self.sensors.foot, self.sensors.shin, self.foot_height_m)
         if reflex is not None:
             self.stats.reflexes.append(reflex)
             self.premotor.on_reflex(reflex.kind, now_s)

@@ -18,3 +18,6 @@ class Premotor(Protocol):
 
     def on_reflex(self, kind: str, now_s: float) -> None:
         """A contact reflex fired: ``"extension"`` or ``"placement"``."""
+
+    def gated_weight(self) -> float:
+        """The burst change [s] the last gate asked for (0: the gate changed nothing)."""

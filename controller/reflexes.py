@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 if TYPE_CHECKING:  # the config imports this module; the CPG imports the config
     from controller.cpg import CpgOutput
@@ -74,15 +74,19 @@ class ContactReflexes:
         self._shin = False
         self._last_reflex_s = -math.inf
 
-    def update(self, now_s: float, cpg: CpgOutput, foot: bool, shin: bool, foot_height_m: float) -> Reflex | None:
+    def update(self, now_s: float, cpg: CpgOutput, foot: bool, shin: bool,
+               foot_height_m: Callable[[], float]) -> Reflex | None:
+        """``foot_height_m`` is asked only when the foot switch closes (it costs a forward kinematics)."""
         cause = None
         if shin and not self._shin:
             cause = "shin"
         elif foot and not self._foot:
             if cpg.flexing and cpg.phase < self.config.touchdown_phase:
                 cause = "foot_in_air"
-            elif math.isfinite(foot_height_m) and foot_height_m > self.config.on_top_height_m:
-                cause = "foot_on_top"
+            else:
+                height = foot_height_m()
+                if math.isfinite(height) and height > self.config.on_top_height_m:
+                    cause = "foot_on_top"
         self._foot, self._shin = foot, shin
         if cause is None or now_s - self._last_reflex_s < self.config.refractory_s:
             return None

@@ -569,11 +569,7 @@ class SimOdriveAxis:
     # ------------------------------------------------------------------ control loop
     def update(self, now_s: float, dt_s: float) -> None:
         """One control step at physics rate: watchdog, then the cascade, then the motor torque."""
-        if self.state is _CLOSED_LOOP:
-            # _check_watchdog, inlined: this runs on every physics step.
-            timeout = self._watchdog_timeout_s
-            if timeout > 0.0 and now_s - self._last_feed_s > timeout:
-                self._disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
+        self._check_watchdog(now_s)
         motor = self.motor
         raw_pos, vel = motor.motor_state()
         if self.state is not _CLOSED_LOOP:
@@ -584,10 +580,7 @@ class SimOdriveAxis:
         pos = raw_pos + self.pos_offset_rev
         mode = self.control_mode
         vel_limit = self.vel_limit_rev_s
-        # torque_limit_nm, inlined: Kt * min(runtime current limit, hardware limit).
-        current_limit = self.current_limit_a
-        hw_limit = self._hw_current_limit_a
-        torque_limit = self._kt * (hw_limit if hw_limit < current_limit else current_limit)
+        torque_limit = self.torque_limit_nm
         if mode is _TORQUE_CONTROL:
             torque = self.input_torque_nm
             # ODrive's enable_torque_mode_vel_limit: no torque that pushes further past the limit.

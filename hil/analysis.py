@@ -31,8 +31,14 @@ def load_run(folder: str | Path) -> dict[str, Any]:
 
 
 def window_success(trials: list[dict], first: int, last: int) -> float | None:
+    """Mean success over trials numbered ``first..last`` (1-based, inclusive)."""
     window = trials[first - 1 : last]
     return sum(t["success"] for t in window) / len(window) if window else None
+
+
+def mistakes_101_150(trials: list[dict]) -> int | None:
+    """Failed trials among 101-150 (None for a run shorter than 150 trials)."""
+    return sum(not t["success"] for t in trials[100:150]) if len(trials) >= 150 else None
 
 
 def footfall_std_by_step(runs: list[dict], first: int, last: int, steps: int = 4) -> list[float | None]:
@@ -101,7 +107,7 @@ def analyze(folders: list[str | Path]) -> dict[str, Any]:
             "trials": len(t),
             "success_rate": window_success(t, 1, len(t)),
             "success_21_40": window_success(t, 21, 40),
-            "mistakes_101_150": sum(not x["success"] for x in t[100:150]) if len(t) >= 150 else None,
+            "mistakes_101_150": mistakes_101_150(t),
             "wall_s": r["summary"]["wall_s"],
             "sim_s": r["summary"]["sim_s"],
         }

@@ -27,6 +27,7 @@ from controller.supervisor import Phase
 from controller.weights import save_weights
 from firmware_sim.leg import LegHardware
 from firmware_sim.plant import Obstacle
+from hil.analysis import footfall_std_by_step, mistakes_101_150, window_success
 from hil.groundtruth import FootfallTracker
 from hil.lockstep import Lockstep, LockstepConfig
 
@@ -85,14 +86,6 @@ class LearnConfig:
             ctl = replace(ctl, learner=replace(ctl.learner, learning=False))
         ctl = replace(ctl, range_filter=replace(ctl.range_filter, noise_m=max(self.range_noise_m, 0.005)))
         return LockstepConfig(seed=self.seed, hardware=replace(hw, sensor=sensor), controller=ctl)
-
-
-def _jsonable(obj: Any) -> Any:
-    if dataclasses.is_dataclass(obj):
-        return {f.name: _jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    return obj
 
 
 class LearningRun:
@@ -198,20 +191,14 @@ class LearningRun:
         self.ls.close()
 
 
-def success_rate(trials: list[dict[str, Any]], first: int, last: int) -> float | None:
-    """Mean success over trials numbered ``first..last`` (1-based, inclusive)."""
-    window = trials[first - 1 : last]
-    return sum(t["success"] for t in window) / len(window) if window else None
-
-
 def summarize(trials: list[dict[str, Any]], wall_s: float, sim_s: float) -> dict[str, Any]:
     n = len(trials)
     return {
         "trials": n,
-        "success_rate": success_rate(trials, 1, n),
-        "success_1_20": success_rate(trials, 1, 20),
-        "success_21_40": success_rate(trials, 21, 40),
-        "mistakes_101_150": sum(not t["success"] for t in trials[100:150]) if n >= 150 else None,
+        "success_rate": window_success(trials, 1, n),
+        "success_1_20": window_success(trials, 1, 20),
+        "success_21_40": window_success(trials, 21, 40),
+        "mistakes_101_150": mistakes_101_150(trials),
         "reflexes": sum(len(t["reflexes"]) for t in trials),
         "wall_s": wall_s,
         "sim_s": sim_s,
@@ -232,7 +219,7 @@ def run_learning(config: LearnConfig, out_dir: str | Path | None = None, progres
     finally:
         run.close()
     metrics = {
-        "config": _jsonable(config),
+        "config": dataclasses.asdict(config),
         "trials": trials,
         "summary": summarize(trials, time.perf_counter() - wall0, sim_s),
     }
@@ -251,7 +238,6 @@ def run_learning(config: LearnConfig, out_dir: str | Path | None = None, progres
 
 def write_figures(out: Path, metrics: dict[str, Any], premotor) -> None:
     from hil import figures
-    from hil.analysis import footfall_std_by_step
 
     fig_dir = out / "figures"
     trials = metrics["trials"]
