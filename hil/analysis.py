@@ -15,6 +15,8 @@ import numpy as np
 
 def load_run(folder: str | Path) -> dict[str, Any]:
     folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: not a folder, so no metrics.json (give learn output folders)")
     metrics_path = folder / "metrics.json"
     try:
         metrics = json.loads(metrics_path.read_text())
@@ -59,6 +61,13 @@ def modulation_by_gate(runs: list[dict], first: int, last: int, gates: int = 6) 
                 if len(t.get("modulation_s", [])) >= k]
         out.append(statistics.fmean(vals) if vals else None)
     return out
+
+
+def modulation_share_last_gates(by_gate: list[float | None], last: int = 3) -> float | None:
+    """Share of the mean |modulation| (summed over gates) asked for at the last ``last`` gates."""
+    vals = [v or 0.0 for v in by_gate]
+    total = sum(vals)
+    return None if total == 0.0 else sum(vals[:last]) / total
 
 
 def autocorrelation(weights: np.ndarray, max_lag: int) -> np.ndarray:
@@ -126,7 +135,8 @@ def analyze(folders: list[str | Path]) -> dict[str, Any]:
         "seeds_without_mistakes_101_150": sum(1 for r in per_seed if r["mistakes_101_150"] == 0),
         "late_window": list(late),
         "footfall_std_m_by_steps_before": footfall_std_by_step(runs, *late),
-        "abs_modulation_s_by_gate_before_crossing": modulation_by_gate(runs, *late),
+        "abs_modulation_s_by_gate_before_crossing": (mod := modulation_by_gate(runs, *late)),
+        "modulation_share_last_three_gates": modulation_share_last_gates(mod),
         "approach_stride_m": _mean(strides),
         "mean_wall_s": _mean(r["wall_s"] for r in per_seed),
     }

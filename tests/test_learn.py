@@ -56,7 +56,7 @@ def test_learn_command_writes_metrics_and_weights(tmp_path, capsys):
         assert all(x < 0 for x in trial["footfalls_m"]) and len(trial["footfalls_m"]) >= 4
     assert {"wall_s", "sim_s"} <= metrics["summary"].keys()
     with np.load(out / "weights.npz", allow_pickle=False) as data:
-        assert data["weights"].shape == (75,) and float(data["cell_width_m"]) == 0.04
+        assert data["weights"].shape == (28,) and float(data["cell_width_m"]) == 0.04
     assert "wrote" in capsys.readouterr().out
 
 
