@@ -3,8 +3,8 @@
 Every received frame is looked up by arbitration id in a table built once from the DBC and the
 configured nodes. A frame is dropped and counted when its id is not one we listen to
 (``unknown``), it is a remote request or an extended/error frame (``unknown``), its DLC is
-short (``malformed``), or its values fail validation (``invalid``: NaN, out-of-range enums,
-stale sequence numbers). Nothing a frame contains can raise out of :meth:`BusIO.drain`.
+short (``malformed``), or its values fail validation (``invalid``: NaN, out-of-range enums or
+profile distances, stale sequence numbers). Nothing a frame contains can raise out of :meth:`BusIO.drain`.
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ class BusIO:
             for name in ("Set_Input_Pos", "Set_Axis_State", "Set_Controller_Mode", "Clear_Errors", "Estop"):
                 self._names[contract.odrive_id(axis.config.node_id, name)] = name
         sb = sensors.node_id
-        for name, handler in (("SB_Range", sensors.on_range), ("SB_Contacts", sensors.on_contacts),
-                              ("SB_Heartbeat", sensors.on_heartbeat)):
+        for name, handler in (("SB_Range", sensors.on_range), ("SB_Profile", sensors.on_profile),
+                              ("SB_Contacts", sensors.on_contacts), ("SB_Heartbeat", sensors.on_heartbeat)):
             codec = contract.codec(name)
             self._listen(arbitration_id(sb, codec.cmd_id), codec, handler)
 

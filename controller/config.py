@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 
 from controller.encoder import RangeEncoderConfig
+from controller.height import HeightEstimatorConfig
 from controller.learner import LearnerConfig
 from controller.range_filter import RangeFilterConfig
 from controller.reflexes import ReflexConfig
@@ -151,6 +152,7 @@ class ControllerConfig:
         range_filter: the Kalman filter on the range readings.
         encoder: the range encoder's cells.
         learner: gated memory, traces and learning rule.
+        height: the obstacle-height estimator (context from the range profile).
         reflexes: contact reflexes and the lift reflex.
         heartbeat_timeout_s: a node silent this long is lost [s]; default 0.35 (3.5 periods).
         bringup_timeout_s: give up bringing the axes up after this long [s]; default 5.0.
@@ -167,6 +169,7 @@ class ControllerConfig:
     range_filter: RangeFilterConfig = RangeFilterConfig()
     encoder: RangeEncoderConfig = RangeEncoderConfig()
     learner: LearnerConfig = LearnerConfig()
+    height: HeightEstimatorConfig = HeightEstimatorConfig()
     reflexes: ReflexConfig = ReflexConfig()
     sensor_node_id: int = 16
     heartbeat_timeout_s: float = 0.35

@@ -100,6 +100,19 @@ class SynapticTraces:
         return self.values
 
 
+def apply_reflex(weights: np.ndarray, traces: np.ndarray, kind: str, config: LearnerConfig) -> None:
+    """The learning rule, in place: every weight moves by ``learning_rate_s * trace``, up for an
+    extension reflex, down for a placement reflex, within ``+-weight_limit_s``. ``traces`` holds
+    one trace per weight, in the weights' order (any shape of the same size)."""
+    if kind not in ("extension", "placement"):
+        raise ValueError(f"unknown reflex kind {kind!r}")
+    if not config.learning or config.learning_rate_s == 0.0:
+        return
+    sign = 1.0 if kind == "extension" else -1.0
+    weights += sign * config.learning_rate_s * traces.reshape(weights.shape)
+    np.clip(weights, -config.weight_limit_s, config.weight_limit_s, out=weights)
+
+
 class AdaptivePremotor:
     """Sets the CPG's burst length from gated memory; learns from reflexes (the Premotor protocol)."""
 
@@ -116,8 +129,9 @@ class AdaptivePremotor:
         self.memory = GatedMemory(config.stm_tau_s)
         self.traces = SynapticTraces(n_cells, config.trace_tau_s)
 
-    def on_step_onset(self, now_s: float, cell: int | None) -> None:
-        """The gate: the encoder's active cell (or none) into STM; its synapse's trace is activated."""
+    def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
+        """The gate: the encoder's active cell (or none) into STM; its synapse's trace is activated.
+        The context (obstacle height bin) is ignored: one set of weights for every height."""
         self.memory.gate(cell, now_s)
         if cell is not None:
             self.traces.activate(cell, now_s)
@@ -137,10 +151,4 @@ class AdaptivePremotor:
 
     def on_reflex(self, kind: str, now_s: float) -> None:
         """Extension reflex: longer strides; placement reflex: shorter strides."""
-        if kind not in ("extension", "placement"):
-            raise ValueError(f"unknown reflex kind {kind!r}")
-        if not self.config.learning or self.config.learning_rate_s == 0.0:
-            return
-        sign = 1.0 if kind == "extension" else -1.0
-        self.weights += sign * self.config.learning_rate_s * self.traces.at(now_s)
-        np.clip(self.weights, -self.config.weight_limit_s, self.config.weight_limit_s, out=self.weights)
+        apply_reflex(self.weights, self.traces.at(now_s), kind, self.config)

@@ -7,9 +7,10 @@ a tick whose measured period exceeds ``late_factor`` periods is counted in ``lat
 
 A tick: drain the bus, update the supervisor, then by phase: hold (arming), ramp, or walk
 (CPG -> premotor burst length -> foot trajectory -> inverse kinematics -> muscle low-pass ->
-Set_Input_Pos for each axis). While walking, every tick also runs the range filter and the
-contact reflexes; every step onset gates the encoded range into the premotor's memory and sets
-the lift reflex's amplitude for the coming swing.
+Set_Input_Pos for each axis). While walking, every tick also runs the range filter, the
+height estimator and the contact reflexes; every step onset gates the encoded range (with the
+height context) into the premotor's memory and sets the lift reflex's amplitude for the coming
+swing.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from controller.bus_io import BusIO
 from controller.config import ControllerConfig
 from controller.cpg import CpgOutput, RingOscillator
 from controller.gait import FootTrajectory
+from controller.height import HeightEstimator
 from controller.encoder import RangeEncoder
 from controller.kinematics import forward, inverse
 from controller.learner import AdaptivePremotor
@@ -49,6 +51,8 @@ class StepRecord:
         cell: the encoder cell gated into memory (None: none).
         modulation_s: the gated cell's weight, the burst change the gate asked for [s].
         amplitude: the CPG amplitude for this cycle (above 1: the lift reflex fired).
+        context: the obstacle-height context passed to the premotor at the gate (None: unknown
+            or no target in view; see :mod:`controller.height`).
     """
 
     index: int
@@ -60,6 +64,7 @@ class StepRecord:
     cell: int | None = None
     modulation_s: float = 0.0
     amplitude: float = 1.0
+    context: int | None = None
 
 
 @dataclass
@@ -86,6 +91,8 @@ class ControlLoop:
         self.cpg = RingOscillator(config.cpg)
         self.encoder = RangeEncoder(config.encoder)
         self.range_filter = RangeFilter(config.range_filter)
+        self.height = HeightEstimator(config.height)
+        self._profile_samples_seen = 0
         self.reflexes = ContactReflexes(config.reflexes)
         self.premotor: Premotor = premotor or AdaptivePremotor(
             self.encoder.n_cells, config.cpg.burst_s, config.learner
@@ -164,13 +171,20 @@ class ControlLoop:
             self.supervisor.enter(Phase.WALK, now_s)
 
     def _sense(self, now_s: float) -> None:
-        """Feed the range filter: predict every tick, correct on each new range sample."""
+        """Feed the range filter: predict every tick, correct on each new range sample; give each
+        new profile sample to the height estimator with the filtered range (no target: cleared)."""
         f = self.range_filter
         f.predict(now_s)
         s = self.sensors
         if s.range_samples != self._range_samples_seen:
             self._range_samples_seen = s.range_samples
             f.reading(s.range_m, s.range_valid, s.range_t_s)
+        estimate = f.estimate_m
+        if s.profile_samples != self._profile_samples_seen:
+            self._profile_samples_seen = s.profile_samples
+            self.height.update(s.profile_m, estimate)
+        elif estimate is None:
+            self.height.clear()
 
     def foot_height_m(self) -> float:
         """Foot height above the ground from the encoders (NaN before the first reading)."""
@@ -181,10 +195,11 @@ class ControlLoop:
     def _gate(self, now_s: float) -> StepRecord:
         gated = self.range_filter.estimate_m
         cell = self.encoder.cell(gated)
-        self.premotor.on_step_onset(now_s, cell)
+        context = self.height.context
+        self.premotor.on_step_onset(now_s, cell, context=context)
         self.cpg.amplitude = lift_amplitude(self.config.reflexes, gated)
         return StepRecord(index=len(self.stats.steps), onset_s=now_s, gated_range_m=gated, cell=cell,
-                          modulation_s=self.premotor.gated_weight(), amplitude=self.cpg.amplitude)
+                          modulation_s=self.premotor.gated_weight(), amplitude=self.cpg.amplitude, context=context)
 
     def _walk(self, now_s: float, dt: float) -> None:
         self._sense(now_s)

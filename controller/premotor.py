@@ -10,8 +10,10 @@ from typing import Protocol
 
 
 class Premotor(Protocol):
-    def on_step_onset(self, now_s: float, cell: int | None) -> None:
-        """The gate: called on the tick the CPG's step-onset signal fires, with the encoder's cell."""
+    def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
+        """The gate: called on the tick the CPG's step-onset signal fires, with the encoder's cell
+        and the obstacle's height context (:mod:`controller.height`; None: unknown or no target).
+        A premotor without contexts ignores it."""
 
     def burst_s(self, now_s: float) -> float:
         """The burst length [s] the CPG should use now (the CPG clips it to its safe bounds)."""

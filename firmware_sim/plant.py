@@ -2,7 +2,7 @@
 
 This is the physics only. Motor drivers (``odrive_axis``) reach the joints through
 :meth:`RigPlant.joint_state` and :meth:`RigPlant.set_joint_torque`; the sensor board through
-:meth:`RigPlant.range_m` and :meth:`RigPlant.contacts`. Scenario control (rail speed, obstacle
+:meth:`RigPlant.range_m`, :meth:`RigPlant.range_profile_m` and :meth:`RigPlant.contacts`. Scenario control (rail speed, obstacle
 placement, resets) is a side channel of the simulation, never on the bus.
 
 Frames: x forward along the rail, z up; the ground's top face is z = 0.
@@ -24,6 +24,8 @@ from pybullet_utils import bullet_client
 import urdf
 
 LEG_JOINTS = ("hip", "knee")
+PROFILE_MAX_BEAMS = 3  # beam slots in the sensor board's SB_Profile frame
+SENSOR_MAX_RANGE_M = 3.0  # the range sensor's and the profile beams' reach
 _SLOT = {name: i for i, name in enumerate(LEG_JOINTS)}
 
 
@@ -39,6 +41,9 @@ class RigConfig:
             than 3 cm is seen at every distance).
         sensor_aim_m: horizontal distance at which the sensor's ray meets flat ground [m];
             default 3.2 (just beyond the sensor's 3 m range, so flat ground reads "no target").
+        profile_heights_m: heights above the ground of the sensor's horizontal profile beams [m],
+            strictly increasing, at most 3 (SB_Profile's beam slots); default (0.05, 0.09, 0.13).
+            Each beam starts at the range sensor's origin (x) and looks straight ahead.
         gravity_m_s2: gravity [m/s^2]; default 9.81.
         solver_iterations: PyBullet constraint solver iterations; default 20 (enough for one foot contact).
         contact_force_n: normal force above which a switch reads closed [N]; default 0.5.
@@ -49,6 +54,7 @@ class RigConfig:
     sensor_offset_x_m: float = 0.20
     sensor_height_m: float = 0.03
     sensor_aim_m: float = 3.2
+    profile_heights_m: tuple[float, ...] = (0.05, 0.09, 0.13)
     gravity_m_s2: float = 9.81
     solver_iterations: int = 20
     contact_force_n: float = 0.5
@@ -58,6 +64,13 @@ class RigConfig:
             raise ValueError(f"physics_hz must be in [100, 20000] Hz, got {self.physics_hz}")
         if not 0.0 <= self.rail_speed_m_s <= 3.0:
             raise ValueError(f"rail_speed_m_s must be in [0, 3] m/s, got {self.rail_speed_m_s}")
+        heights = tuple(self.profile_heights_m)
+        if len(heights) > PROFILE_MAX_BEAMS:
+            raise ValueError(f"profile_heights_m: at most {PROFILE_MAX_BEAMS} beams, got {len(heights)}")
+        if not all(isinstance(h, (int, float)) and math.isfinite(h) and 0.0 < h <= 0.5 for h in heights):
+            raise ValueError(f"profile_heights_m must be in (0, 0.5] m, got {heights!r}")
+        if any(b <= a for a, b in zip(heights, heights[1:])):
+            raise ValueError(f"profile_heights_m must be strictly increasing, got {heights!r}")
 
 
 @dataclass(frozen=True)
@@ -212,7 +225,20 @@ class RigPlant:
         if hit[0] < 0 or hit[0] == self.robot:
             return None
         distance = hit[2] * length
-        return distance if distance <= 3.0 else None
+        return distance if distance <= SENSOR_MAX_RANGE_M else None
+
+    def range_profile_m(self) -> tuple[float | None, ...]:
+        """True distance along each horizontal profile beam (lowest first) to the first hit within
+        3 m, else None; one entry per ``RigConfig.profile_heights_m``. A beam whose first hit is
+        the rig itself (the leg in front of the boom) returns None, like :meth:`range_m`."""
+        heights = self.config.profile_heights_m
+        if not heights:
+            return ()
+        x0 = self.carriage_x_m + self.config.sensor_offset_x_m
+        reach = SENSOR_MAX_RANGE_M
+        hits = pybullet.rayTestBatch([[x0, 0.0, h] for h in heights], [[x0 + reach, 0.0, h] for h in heights],
+                                     physicsClientId=self._cid)
+        return tuple(None if hit[0] < 0 or hit[0] == self.robot else hit[2] * reach for hit in hits)
 
     def contacts(self) -> tuple[bool, bool]:
         """(foot switch, shin switch): each closed while its link presses on anything.

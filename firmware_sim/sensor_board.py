@@ -1,4 +1,4 @@
-"""Our sensor board (CAN node 16): a noisy range finder and two contact switches.
+"""Our sensor board (CAN node 16): a noisy range finder with a vertical profile, and two contact switches.
 
 :class:`SensorBoard` samples a :class:`SensorSource` (the plant's ray cast and contact tests)
 and publishes, with the layouts of the DBC:
@@ -8,6 +8,14 @@ and publishes, with the layouts of the DBC:
   None (likewise invalid), otherwise the true distance plus Gaussian noise of sigma
   ``range_noise_m``, clipped to [0, ``range_max_m``], with Range_Valid=1. Range_Seq counts samples
   (valid or not) modulo 256.
+- ``SB_Profile`` with every range sample (same instant, right after SB_Range) while
+  ``profile_enabled``: the source's horizontal profile beams (lowest first, at most 3), each
+  with the range's model: a dropout with probability ``range_dropout_prob``, no return when the
+  source returns None; otherwise the true distance plus Gaussian noise of sigma
+  ``range_noise_m``, clipped to [0, ``range_max_m``]. A dropout, no return or an unfitted slot
+  is sent as 0xFFFF (65.535 m). Profile_Seq counts profile samples modulo 256. Its random draws
+  (two per slot, whatever the outcome) come from a generator of its own, spawned from the
+  board's, so switching the profile on or off never changes the range samples.
 - ``SB_Contacts`` every ``contacts_period_s``, and at once (in the same :meth:`SensorBoard.due`
   call) when the switches differ from the last frame sent. Contacts_Seq counts contacts frames
   modulo 256 (an RTR reply is a contacts frame too).
@@ -18,8 +26,8 @@ A period of 0 disables that cyclic frame (contact changes are still sent). Every
 comes from the ``numpy.random.Generator`` given to the constructor, two draws a range sample
 whatever the outcome, so a run is reproducible for a given seed and source.
 
-:meth:`SensorBoard.handle` answers an RTR for any of the three messages with the current values
-(the last range sample with its sequence number; the switches as they are now). A data frame
+:meth:`SensorBoard.handle` answers an RTR for any of the four messages with the current values
+(the last range or profile sample with its sequence number; the switches as they are now). A data frame
 with one of the board's ids is malformed, an unknown id or an extended id is unknown; all are
 counted and ignored, and :meth:`SensorBoard.handle` never raises.
 """
@@ -39,6 +47,8 @@ from protocol.frame import data_frame
 BOARD_STATE_RUNNING = 1
 _SCHEDULE_EPS_S = 1e-9
 _RANGE_RESOLUTION_MAX_M = 65.535  # 16 bits at 1 mm
+PROFILE_NO_RETURN_M = 65.535  # raw 0xFFFF in SB_Profile: dropout, nothing within range, or no beam
+PROFILE_SLOTS = 3  # beams in one SB_Profile frame
 
 
 class SensorSource(Protocol):
@@ -46,6 +56,10 @@ class SensorSource(Protocol):
 
     def range_m(self) -> float | None:
         """True distance along the ray (m), or None when nothing is hit within range."""
+        ...
+
+    def range_profile_m(self) -> tuple[float | None, ...]:
+        """True distance along each horizontal profile beam (m, lowest first), None: no hit."""
         ...
 
     def contacts(self) -> tuple[bool, bool]:
@@ -69,6 +83,7 @@ class SensorBoardConfig:
                                                 frame (changes are still sent)
     ``heartbeat_period_s``    s      ``0.1``    SB_Heartbeat period; 0 disables
     ``fw_version``            –      ``1``      firmware version in SB_Heartbeat, 0..255
+    ``profile_enabled``       –      ``True``   send SB_Profile with every range sample
     ========================  =====  =========  ==================================================
     """
 
@@ -79,6 +94,7 @@ class SensorBoardConfig:
     contacts_period_s: float = 0.005
     heartbeat_period_s: float = 0.1
     fw_version: int = 1
+    profile_enabled: bool = True
 
     def __post_init__(self) -> None:
         for name in ("range_period_s", "range_noise_m", "contacts_period_s", "heartbeat_period_s"):
@@ -91,14 +107,20 @@ class SensorBoardConfig:
             raise ValueError(f"range_max_m must be in (0, {_RANGE_RESOLUTION_MAX_M}], got {self.range_max_m!r}")
         if not (isinstance(self.fw_version, int) and 0 <= self.fw_version <= 255):
             raise ValueError(f"fw_version must be an integer 0..255, got {self.fw_version!r}")
+        if not isinstance(self.profile_enabled, bool):
+            raise ValueError(f"profile_enabled must be a bool, got {self.profile_enabled!r}")
 
 
 class SensorBoard:
     """The sensor board as a CAN node (``node_id`` 16).
 
     ``stats``: ``{"rx": {name: n}, "tx": {name: n}, "malformed", "unknown", "foreign",
-    "internal_errors", "range_samples", "range_invalid"}``. ``last_range`` is the last sample as
-    ``(range_m, valid, seq)``.
+    "internal_errors", "range_samples", "range_invalid", "profile_samples"}``. ``last_range`` is
+    the last sample as ``(range_m, valid, seq)``; ``last_profile`` the last profile sample as
+    ``(beam_0_m, beam_1_m, beam_2_m, seq)`` (65.535 m: no return).
+
+    ``profile_rng``: the generator of the profile's noise and dropouts; default a child spawned
+    from ``rng`` (which leaves ``rng``'s own stream untouched).
     """
 
     node_id = SENSOR_BOARD_NODE_ID
@@ -110,22 +132,29 @@ class SensorBoard:
         rng: np.random.Generator,
         contract: BusContract | None = None,
         boot_s: float = 0.0,
+        profile_rng: np.random.Generator | None = None,
     ) -> None:
         self.config = config
         self.source = source
         self.rng = rng
+        self.profile_rng = profile_rng if profile_rng is not None else rng.spawn(1)[0]
         self.boot_s = boot_s
         contract = contract if contract is not None else BusContract.load()
         self._range_codec = contract.codec("SB_Range")
         self._contacts_codec = contract.codec("SB_Contacts")
         self._hb_codec = contract.codec("SB_Heartbeat")
-        self._codecs = {c.cmd_id: c for c in (self._range_codec, self._contacts_codec, self._hb_codec)}
+        self._profile_codec = contract.codec("SB_Profile")
+        if self._profile_codec.dlc != 2 * PROFILE_SLOTS + 1 or len(self._profile_codec.signal_names) != PROFILE_SLOTS + 1:
+            raise ValueError(f"SB_Profile must carry {PROFILE_SLOTS} u16 beams and a u8 sequence number")
+        self._codecs = {c.cmd_id: c for c in (self._range_codec, self._contacts_codec, self._hb_codec,
+                                               self._profile_codec)}
         for cmd in self._codecs:
             if contract.sensor_board.get(cmd) is not self._codecs[cmd]:
                 raise ValueError("sensor board messages must be defined at node 16 in the DBC")
         self._range_id = arbitration_id(self.node_id, self._range_codec.cmd_id)
         self._contacts_id = arbitration_id(self.node_id, self._contacts_codec.cmd_id)
         self._hb_id = arbitration_id(self.node_id, self._hb_codec.cmd_id)
+        self._profile_id = arbitration_id(self.node_id, self._profile_codec.cmd_id)
         names = [c.name for c in self._codecs.values()]
         self.stats: dict = {
             "rx": {n: 0 for n in names},
@@ -136,11 +165,14 @@ class SensorBoard:
             "internal_errors": 0,
             "range_samples": 0,
             "range_invalid": 0,
+            "profile_samples": 0,
         }
         self._tx = self.stats["tx"]
         self._range_seq = 0
         self._contacts_seq = 0
         self.last_range: tuple[float, int, int] = (0.0, 0, 0)
+        self._profile_seq = 0
+        self.last_profile: tuple[float, ...] = (PROFILE_NO_RETURN_M,) * PROFILE_SLOTS + (0,)
         self._last_contacts: tuple[bool, bool] | None = None
         self._next_range = -math.inf
         self._next_contacts = -math.inf
@@ -167,6 +199,34 @@ class SensorBoard:
             sample = (min(max(reading, 0.0), cfg.range_max_m), 1, seq)
         self.last_range = sample
         return sample
+
+    def _sample_profile(self) -> tuple[float, ...]:
+        cfg = self.config
+        rng = self.profile_rng
+        u = rng.random(PROFILE_SLOTS)
+        noise = rng.standard_normal(PROFILE_SLOTS)
+        beams = tuple(self.source.range_profile_m())
+        if len(beams) > PROFILE_SLOTS:
+            raise ValueError(f"the source has {len(beams)} profile beams; SB_Profile carries {PROFILE_SLOTS}")
+        seq = self._profile_seq
+        self._profile_seq = (seq + 1) & 0xFF
+        self.stats["profile_samples"] += 1
+        top = min(cfg.range_max_m, PROFILE_NO_RETURN_M - 0.001)
+        values: list[float] = []
+        for i in range(PROFILE_SLOTS):
+            true_m = beams[i] if i < len(beams) else None
+            if u[i] < cfg.range_dropout_prob or true_m is None or not math.isfinite(true_m):
+                values.append(PROFILE_NO_RETURN_M)
+            else:
+                reading = float(true_m) + cfg.range_noise_m * float(noise[i])
+                values.append(min(max(reading, 0.0), top))
+        sample = (*values, seq)
+        self.last_profile = sample
+        return sample
+
+    def _profile_frame(self, values: tuple[float, ...]) -> can.Message:
+        self._tx[self._profile_codec.name] += 1
+        return data_frame(self._profile_id, self._profile_codec.pack(*values))
 
     def _range_frame(self, values: tuple[float, int, int]) -> can.Message:
         self._tx[self._range_codec.name] += 1
@@ -195,13 +255,15 @@ class SensorBoard:
         """Nothing to do between frames: sampling happens when a frame is due."""
 
     def due(self, now_s: float) -> list[can.Message]:
-        """Frames due at ``now_s``: range sample, contacts (cyclic or changed), heartbeat."""
+        """Frames due at ``now_s``: range sample (and profile), contacts (cyclic or changed), heartbeat."""
         out: list[can.Message] = []
         period = self._range_period_s
         if period > 0.0 and now_s >= self._next_range - _SCHEDULE_EPS_S:
             nxt = self._next_range + period
             self._next_range = nxt if nxt > now_s else now_s + period
             out.append(self._range_frame(self._sample_range()))
+            if self.config.profile_enabled:
+                out.append(self._profile_frame(self._sample_profile()))
         contacts = self._read_contacts()
         period = self._contacts_period_s
         cyclic = period > 0.0 and now_s >= self._next_contacts - _SCHEDULE_EPS_S
@@ -218,7 +280,8 @@ class SensorBoard:
         return out
 
     def handle(self, msg: can.Message, now_s: float) -> list[can.Message]:
-        """Answer an RTR for SB_Range / SB_Contacts / SB_Heartbeat; count and ignore anything else."""
+        """Answer an RTR for SB_Range / SB_Profile / SB_Contacts / SB_Heartbeat; count and ignore
+        anything else."""
         try:
             return self._handle(msg, now_s)
         except Exception:  # noqa: BLE001 - a simulated node must never bring the bus down
@@ -243,6 +306,8 @@ class SensorBoard:
             return []
         if codec is self._range_codec:
             return [self._range_frame(self.last_range)]
+        if codec is self._profile_codec:
+            return [self._profile_frame(self.last_profile)]
         if codec is self._contacts_codec:
             return [self._contacts_frame(self._read_contacts())]
         return [self._heartbeat_frame(now_s)]

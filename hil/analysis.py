@@ -120,7 +120,7 @@ def analyze(folders: list[str | Path]) -> dict[str, Any]:
             "wall_s": r["summary"]["wall_s"],
             "sim_s": r["summary"]["sim_s"],
         }
-        if "weights" in r:
+        if "weights" in r and r["weights"].ndim == 1:  # one context (the context learner's are 2-D)
             peak = autocorrelation_peak(r["weights"], r["cell_width_m"])
             row["weights_period_m"] = peak["period_m"]
             row["weights_autocorrelation_peak"] = peak["peak"]

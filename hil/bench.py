@@ -9,6 +9,13 @@ Figures (keys of the JSON):
   bus_load            fraction of a 1 Mbit/s bus used at the default rates while walking, from
                       bit-exact lengths (stuffing included) of every frame seen on the bus
   learning            learning trials per minute through the whole stack
+  hil                 with ``--hil`` (:mod:`hil.bench_hil`): on a real SocketCAN vcan0 (in User-Mode
+                      Linux where needed), the controller daemon and the simulated leg as two
+                      processes: control-period jitter p99 (and median, max), late ticks per
+                      10,000, command-to-feedback latency median and p99, each beside the same
+                      figure for a bare loop / bare echo doing no work in the same session (the
+                      platform's floor), with ratios; where it ran and the UML boot time. Without
+                      ``--hil``: only whether it could run.
 No figure here is asserted in a test: these machines are shared and noisy; compare ratios.
 """
 
@@ -134,9 +141,15 @@ def bench_learning(trials: int, seed: int = 0) -> dict[str, Any]:
             "projected_150_trials_s": 150 / s["trials_per_minute"] * 60.0}
 
 
-def run_bench(seconds: float = 10.0, seed: int = 0, learn_trials: int = 10) -> dict[str, Any]:
+def run_bench(seconds: float = 10.0, seed: int = 0, learn_trials: int = 10,
+              hil_seconds: float | None = None) -> dict[str, Any]:
+    """All figures; ``hil_seconds``: also the HIL figures (that many seconds of walking)."""
+    from hil.bench_hil import hil_availability, run_hil_bench
+
     bare = bench_bare_physics(seconds)
     lock = bench_lockstep(seconds, seed)
+    # last, so the HIL session does not share the machine with the runs above
+    hil = (lambda: hil_availability()) if hil_seconds is None else (lambda: run_hil_bench(hil_seconds, seed))
     return {
         "lockstep_rtf": lock["rtf"],
         "bare_physics_rtf": bare["rtf"],
@@ -145,6 +158,7 @@ def run_bench(seconds: float = 10.0, seed: int = 0, learn_trials: int = 10) -> d
         "codec_us": bench_codec(),
         "bus_load": bench_bus_load(min(seconds, 5.0), seed),
         "learning": bench_learning(learn_trials, seed),
+        "hil": hil(),
         "detail": {"lockstep": {k: v for k, v in lock.items() if k != "tick_cost_us"}, "bare_physics": bare},
         "machine": {"python": platform.python_version(), "platform": platform.platform(), "cpus": _cpus()},
     }

@@ -61,6 +61,7 @@ def cmd_learn(args: argparse.Namespace) -> int:
         obstacle_depth_m=args.obstacle_depth_m,
         range_noise_m=args.range_noise_m,
         learning=not args.no_learning,
+        trace_trials=(0, -1),
     )
     metrics = run_learning(config, out_dir=args.out, progress=not args.quiet, figures=not args.no_figures)
     s = metrics["summary"]
@@ -85,9 +86,137 @@ def cmd_analyze(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from hil.bench import run_bench
 
-    result = run_bench(seconds=args.seconds, seed=args.seed, learn_trials=args.learn_trials)
+    result = run_bench(seconds=args.seconds, seed=args.seed, learn_trials=args.learn_trials,
+                       hil_seconds=args.hil_seconds if args.hil else None)
     _write_json(args.json, result)
+    if args.hil:
+        h = result["hil"]
+        if not h.get("available"):
+            print(f"elegant-stepping bench --hil: {h.get('error')} (install: {h.get('install')})", file=sys.stderr)
+            return 3
+        f = h["figures"]
+
+        def pair(key: str) -> str:
+            x = f[key]
+            r = "n/a" if x["ratio"] is None else f"{x['ratio']:.1f}x"
+            fmt = lambda v: "n/a" if v is None else f"{v:.0f}"  # noqa: E731
+            return f"{fmt(x['hil'])} vs {fmt(x['floor'])} ({r})"
+
+        print(f"bench --hil ({h['where']}): jitter p99 {pair('period_jitter_p99_us')} us, late/10k "
+              f"{pair('late_ticks_per_10k')}, command->feedback median {pair('command_to_feedback_median_us')} us, "
+              f"p99 {pair('command_to_feedback_p99_us')} us (HIL vs floor)", file=sys.stderr)
+        if h.get("error"):
+            print(f"elegant-stepping bench --hil: {h['error']}", file=sys.stderr)
+            return 1
     return 0
+
+
+def cmd_figures(args: argparse.Namespace) -> int:
+    from hil.figures import paper_figures
+
+    written = paper_figures(args.folders, args.out)
+    _write_json(args.json, {name: [str(p) for p in paths] for name, paths in written.items()})
+    print(f"wrote {len(written)} figures (PNG and SVG) into {args.out}", file=sys.stderr)
+    return 0
+
+
+def cmd_animate(args: argparse.Namespace) -> int:
+    from hil.animation import AnimationConfig, animate
+    from hil.learn import LearnConfig
+
+    config = LearnConfig(trials=args.trials, seed=args.seed, obstacle_height_m=args.obstacle_height_m)
+    anim = AnimationConfig(fps=args.fps, width_px=args.width, height_px=args.height)
+    result = animate(config, args.out, anim, progress=not args.quiet)
+    if args.json is not None:
+        _write_json(args.json, result)
+    files = ", ".join(f"{Path(f['path']).name} ({f['frames']} frames, {f['size_px'][0]}x{f['size_px'][1]})"
+                      for f in result["files"].values())
+    outcome = {k: "cleared" if v else "hit" for k, v in result["success"].items()}
+    print(f"trial 1 {outcome['before']}, trial {config.trials} {outcome['after']}; wrote {files}; "
+          f"rendering took {result['render_wall_s']:.1f} s of {result['wall_s']:.1f} s", file=sys.stderr)
+    return 0
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from hil.report import write_report
+    from hil.sweep import SweepConfig, parse_heights, parse_methods, parse_seeds, run_sweep
+
+    if args.report_only:
+        report = write_report(args.out)
+        print(f"wrote {report['report']} and {args.out}/figures/", file=sys.stderr)
+        return 0
+    config = SweepConfig(
+        out_dir=Path(args.out),
+        seeds=parse_seeds(args.seeds),
+        obstacle_heights_m=parse_heights(args.obstacle_heights_m),
+        methods=parse_methods(args.methods),
+        trials=args.trials,
+        mixed_heights=args.mixed_heights,
+        dask=args.dask,
+        **({} if args.workers is None else {"workers": args.workers}),
+    )
+    stats = run_sweep(config, progress=not args.quiet)
+    if stats["rows"]:
+        write_report(config.out_dir)
+    print(f"sweep: {stats['cells']} cells, {stats['ran']} run, {stats['resumed']} resumed, "
+          f"{len(stats['failed'])} failed; wrote {args.out}/summary.json, timing.json"
+          f"{', report.md' if stats['rows'] else ''}", file=sys.stderr)
+    if stats["failed"]:
+        print(f"elegant-stepping sweep: {len(stats['failed'])} cells failed: {', '.join(stats['failed'])} "
+              f"(errors in {args.out}/timing.json)", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _bus_kw(args: argparse.Namespace) -> dict:
+    from hil.configfile import bus_kwargs
+
+    return bus_kwargs(args.interface, args.channel, args.bitrate)
+
+
+def cmd_firmware_sim(args: argparse.Namespace) -> int:
+    from hil.firmware_proc import run_firmware
+
+    final = run_firmware(_bus_kw(args), seed=args.seed, gui=args.gui, scenario=args.scenario,
+                         range_noise_m=args.range_noise_m, range_dropout_prob=args.range_dropout_prob,
+                         duration_s=args.seconds, steps_per_wake=args.steps_per_wake)
+    print(json.dumps({k: final[k] for k in ("t_s", "axes", "watchdog_trips", "host", "pacing")}), file=sys.stderr)
+    return 0
+
+
+def cmd_controller(args: argparse.Namespace) -> int:
+    from hil.configfile import load_controller_config
+    from hil.controller_proc import run_controller
+
+    final = run_controller(_bus_kw(args), load_controller_config(args.config), records=args.records,
+                           weights=args.weights, ticks=args.ticks, duration_s=args.seconds)
+    final.pop("weights", None)
+    print(json.dumps(final), file=sys.stderr)
+    return 0 if final["phase"] != "fault" else 1
+
+
+def cmd_hil(args: argparse.Namespace) -> int:
+    from hil.hilrun import main_hil
+
+    return main_hil(args)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from hil.replay import main_replay
+
+    return main_replay(args)
+
+
+def cmd_decode(args: argparse.Namespace) -> int:
+    from hil.replay import main_decode
+
+    return main_decode(args)
+
+
+def _add_bus_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--interface", default=None, help="python-can interface (default: python-can's config, else socketcan)")
+    p.add_argument("--channel", default=None, help="bus channel, e.g. vcan0 (default: python-can's config)")
+    p.add_argument("--bitrate", type=int, default=None, help="bit rate [bit/s] (ignored by vcan)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -125,7 +254,101 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument("--learn-trials", type=int, default=10, help="learning trials timed (default 10)")
     bench.add_argument("--json", default="-", help="where to write the figures (default: stdout)")
+    bench.add_argument("--hil", action="store_true",
+                       help="also the HIL figures on a real vcan0 (User-Mode Linux where needed), beside the floor")
+    bench.add_argument("--hil-seconds", type=_positive(float), default=10.0,
+                       help="seconds of walking (and of each floor run) for --hil (default 10)")
     bench.set_defaults(func=cmd_bench)
+
+    figures = sub.add_parser("figures", help="the paper's figures (PNG and SVG) from learn output folders")
+    figures.add_argument("folders", nargs="+", help="learn output folders (seeds, heights, baselines)")
+    figures.add_argument("--out", required=True, help="output folder for the figures")
+    figures.add_argument("--json", default="-", help="where to list the written files (default: stdout)")
+    figures.set_defaults(func=cmd_figures)
+
+    animate = sub.add_parser("animate", help="GIFs of the leg before and after learning (PyBullet renderer)")
+    animate.add_argument("--trials", type=int, default=60, help="learning trials; the first and last are filmed (60)")
+    animate.add_argument("--seed", type=int, default=0, help="seed of start distances and sensor noise (default 0)")
+    animate.add_argument("--out", required=True, help="output folder for before.gif, after.gif, before_after.gif")
+    animate.add_argument("--obstacle-height-m", type=_positive(float), default=0.08, help="obstacle height [m] (0.08)")
+    animate.add_argument("--fps", type=_positive(float), default=15.0, help="frames per simulated second (15)")
+    animate.add_argument("--width", type=int, default=360, help="frame width [px] (360)")
+    animate.add_argument("--height", type=int, default=240, help="frame height [px] (240)")
+    animate.add_argument("--json", default=None, help="also write the summary as JSON here ('-': stdout)")
+    animate.add_argument("--quiet", action="store_true", help="no progress bar")
+    animate.set_defaults(func=cmd_animate)
+    sweep = sub.add_parser("sweep", help="learning runs over seeds x obstacle heights x methods, with a report")
+    sweep.add_argument("--out", required=True, help="sweep folder: cells/, summary.json, timing.json, report.md")
+    sweep.add_argument("--seeds", default="0-9", help="seeds: a list 0,1,2 and/or ranges 0-9 (default 0-9)")
+    sweep.add_argument("--obstacle-heights-m", default="0.08", help="obstacle heights [m], comma list (0.08)")
+    sweep.add_argument("--mixed-heights", action="store_true",
+                       help="one scenario in which each trial draws its height from the list")
+    sweep.add_argument("--methods", default="learner,none,oracle,rl",
+                       help="methods, comma list: learner, none, oracle, rl, context (default learner,none,oracle,rl)")
+    sweep.add_argument("--trials", type=int, default=150, help="trials per run (default 150)")
+    sweep.add_argument("--workers", type=int, default=None, help="worker processes (default: os.cpu_count())")
+    sweep.add_argument("--dask", default=None, metavar="ADDRESS",
+                       help="run on the Dask scheduler at ADDRESS, or 'local' for a LocalCluster of --workers")
+    sweep.add_argument("--report-only", action="store_true", help="only rewrite report.md and figures/ from DIR")
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.set_defaults(func=cmd_sweep)
+
+    fw = sub.add_parser("firmware-sim", help="the simulated leg (plant, drivers, sensor board) on a CAN bus, real time")
+    _add_bus_args(fw)
+    fw.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
+    fw.add_argument("--gui", action="store_true", help="open PyBullet's window")
+    fw.add_argument("--scenario", default=None, metavar="ADDR",
+                    help="Unix socket for the scenario side channel ('@name': abstract namespace)")
+    fw.add_argument("--range-noise-m", type=float, default=None, help="range sensor noise, 1 sigma [m]")
+    fw.add_argument("--range-dropout-prob", type=float, default=None, help="range dropout probability")
+    fw.add_argument("--seconds", type=_positive(float), default=None, help="stop after this much time (default: run)")
+    fw.add_argument("--steps-per-wake", type=int, default=None,
+                    help="physics steps per wake-up (default 1; 2 inside User-Mode Linux)")
+    fw.set_defaults(func=cmd_firmware_sim)
+
+    ctl = sub.add_parser("controller", help="the controller daemon at its fixed rate on a CAN bus")
+    _add_bus_args(ctl)
+    ctl.add_argument("--config", default=None, metavar="FILE", help="controller configuration (JSON; defaults otherwise)")
+    ctl.add_argument("--records", default=None, metavar="FILE", help="write the controller's records here (JSON lines)")
+    ctl.add_argument("--weights", default=None, metavar="FILE", help="save the learned weights here at exit (.npz)")
+    ctl.add_argument("--ticks", default=None, metavar="FILE", help="write every tick's clock here (for replay)")
+    ctl.add_argument("--seconds", type=_positive(float), default=None, help="stop after this long (default: run)")
+    ctl.set_defaults(func=cmd_controller)
+
+    hil = sub.add_parser("hil", help="learning trials with the controller and the simulated leg as two processes "
+                                     "on a real SocketCAN bus (inside User-Mode Linux where the kernel has no CAN)")
+    hil.add_argument("--trials", type=int, default=10, help="number of approaches (default 10)")
+    hil.add_argument("--seed", type=int, default=0, help="seed of start distances and sensor noise (default 0)")
+    hil.add_argument("--out", required=True, help="output folder: metrics.json, bus.blf/bus.log, weights.npz, logs")
+    hil.add_argument("--channel", default="vcan0", help="SocketCAN channel (default vcan0)")
+    hil.add_argument("--obstacle-height-m", type=_positive(float), default=0.08, help="obstacle height [m] (0.08)")
+    hil.add_argument("--range-noise-m", type=float, default=0.02, help="range sensor noise, 1 sigma [m] (0.02)")
+    hil.add_argument("--no-learning", action="store_true", help="freeze the weights at zero (the baseline)")
+    hil.add_argument("--log-format", choices=("blf", "log"), default="blf",
+                     help="bus recording: BLF (bus.blf) or candump (bus.log); default blf")
+    hil.add_argument("--where", choices=("auto", "native", "uml"), default="auto",
+                     help="native vcan, User-Mode Linux, or auto: native if vcan can be had, else UML")
+    hil.add_argument("--timeout", type=_positive(float), default=None, help="give up after this many seconds")
+    hil.add_argument("--quiet", action="store_true", help="less output")
+    hil.set_defaults(func=cmd_hil)
+
+    replay = sub.add_parser("replay", help="feed a recorded bus log to the controller offline; print its decisions")
+    replay.add_argument("log", help="bus log (.blf, .log, .asc, ...) recorded by hil")
+    replay.add_argument("--config", default=None, metavar="FILE",
+                        help="controller configuration (default: controller.json beside the log, else defaults)")
+    replay.add_argument("--records", default=None, metavar="FILE",
+                        help="the live run's records to compare with (default: controller.jsonl beside the log)")
+    replay.add_argument("--json", default=None, help="also write the replayed decisions as JSON here ('-': stdout)")
+    replay.set_defaults(func=cmd_replay)
+
+    decode = sub.add_parser("decode", help="print a bus log as named signals (cantools with our DBC)")
+    decode.add_argument("log", help="bus log (.blf, .log, .asc, ...)")
+    decode.add_argument("--limit", type=int, default=None, help="print at most this many frames")
+    decode.add_argument("--load", action="store_true",
+                        help="print the bus load instead (JSON: frames/s x bits/frame, per message)")
+    decode.add_argument("--bitrate", type=int, default=1_000_000, help="bus bitrate for --load [bit/s] (1000000)")
+    decode.add_argument("--skip-s", type=float, default=0.0, help="leave out the first seconds for --load (0)")
+    decode.set_defaults(func=cmd_decode)
     return parser
 
 

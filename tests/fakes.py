@@ -2,8 +2,8 @@
 
 :class:`FakeJointPlant` is a set of independent 1-DOF rotary inertias with viscous damping and
 an optional constant load torque, integrated with semi-implicit (symplectic) Euler: velocity
-first, then position with the new velocity. :class:`FakeSensorSource` returns whatever range
-and contacts a test sets.
+first, then position with the new velocity. :class:`FakeSensorSource` returns whatever range,
+range profile and contacts a test sets.
 """
 
 from __future__ import annotations
@@ -66,6 +66,7 @@ class FakeSensorSource:
     """A range and two switches set by the test; counts how often each is read."""
 
     range_value: float | None = 1.0
+    profile_value: tuple[float | None, ...] = (None, None, None)
     foot: bool = False
     shin: bool = False
     range_reads: int = field(default=0, init=False)
@@ -74,6 +75,9 @@ class FakeSensorSource:
     def range_m(self) -> float | None:
         self.range_reads += 1
         return self.range_value
+
+    def range_profile_m(self) -> tuple[float | None, ...]:
+        return self.profile_value
 
     def contacts(self) -> tuple[bool, bool]:
         self.contact_reads += 1

@@ -168,7 +168,7 @@ def test_failing_send_is_counted_not_raised():
     host, _, _, _ = rig(bus)
     assert host.poll(0.0) == 1
     sent = host.publish(0.0)
-    assert sent == 2 + 2 + 3  # two axes x (heartbeat, encoder) + board (range, contacts, heartbeat)
+    assert sent == 2 + 2 + 4  # two axes x (heartbeat, encoder) + board (range, profile, contacts, heartbeat)
     assert host.stats["send_errors"] == 1 + sent
     assert host.stats["tx"] == 0
     bus.shutdown()

@@ -186,7 +186,7 @@ def test_rtr_replies_with_current_values():
     assert by_name(board.due(0.021), CONTACTS) == []  # the reply already reported the change
     reply = board.handle(can.Message(arbitration_id=HEARTBEAT.frame_id, is_remote_frame=True, is_extended_id=False), 2.5)
     assert HEARTBEAT.decode(reply[0].data)["Uptime_ds"] == pytest.approx(2.5)
-    assert board.stats["rx"] == {"SB_Heartbeat": 1, "SB_Range": 1, "SB_Contacts": 1}
+    assert board.stats["rx"] == {"SB_Heartbeat": 1, "SB_Range": 1, "SB_Contacts": 1, "SB_Profile": 0}
 
 
 def test_other_frames_counted_and_ignored():

@@ -1,0 +1,129 @@
+"""The obstacle's height, as the controller can tell it: a context index from the range profile.
+
+The sensor board's profile (SB_Profile) is a few horizontal beams at fixed heights above the
+ground, lowest first. An obstacle of height H stops every beam below H and none above it, so the
+number of beams that see *the target* (the thing the range filter tracks) is a height bin:
+context k means the obstacle is taller than beam k-1 and lower than beam k (0: lower than the
+lowest beam, ``n_beams``: taller than the highest).
+
+A beam sees the target when its reading lies within ``match_tolerance_m`` of the filtered range
+(the ray and the beams start at the same boom and meet the obstacle's near face at the same
+distance, to well under a millimetre at these heights). Each profile sample casts one vote per
+beam (on the target or not); a beam counts as seeing the target when it did in at least
+``seen_fraction`` of the last ``window`` samples (a majority per beam, so independent dropouts
+of a few percent, or even 30 %, do not change the count), and the context is the number of such
+beams. The votes are cleared when the
+target leaves view (the filter withdraws its estimate) and when the filtered range jumps by more
+than ``jump_m`` between two samples (a new target: the filter re-acquired). With no votes the
+context is None (unknown).
+
+The estimator never sees the scenario: only the profile frames and the filtered range.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class HeightEstimatorConfig:
+    """Attributes:
+    beam_heights_m: heights of the profile beams above the ground [m], lowest first, as mounted
+        on the rig (Beam_0 upward); default (0.05, 0.09, 0.13). Only their number matters to the
+        context; the heights say what each context means (:meth:`HeightEstimator.bounds_m`).
+    match_tolerance_m: a beam sees the target when its reading is within this of the filtered
+        range [m]; default 0.10 (5 standard deviations of the 0.02 m reading noise).
+    window: votes kept, one per profile sample (50 Hz); default 10 (the last 0.2 s).
+    seen_fraction: a beam sees the target when it matched in at least this fraction of the kept
+        samples; default 0.5 (a majority; a tie counts as seen).
+    jump_m: a change of the filtered range between two samples larger than this means a new
+        target and clears the votes [m]; default 0.30 (the carriage covers 0.01 m per sample).
+    """
+
+    beam_heights_m: tuple[float, ...] = (0.05, 0.09, 0.13)
+    match_tolerance_m: float = 0.10
+    window: int = 10
+    seen_fraction: float = 0.5
+    jump_m: float = 0.30
+
+    def __post_init__(self) -> None:
+        heights = tuple(self.beam_heights_m)
+        if not 1 <= len(heights) <= 8:
+            raise ValueError(f"height.beam_heights_m must list 1 to 8 beams, got {len(heights)}")
+        if not all(isinstance(h, (int, float)) and math.isfinite(h) and 0.0 < h <= 0.5 for h in heights):
+            raise ValueError(f"height.beam_heights_m must be in (0, 0.5] m, got {heights!r}")
+        if any(b <= a for a, b in zip(heights, heights[1:])):
+            raise ValueError(f"height.beam_heights_m must be strictly increasing, got {heights!r}")
+        if not (math.isfinite(self.match_tolerance_m) and 0.0 < self.match_tolerance_m <= 1.0):
+            raise ValueError(f"height.match_tolerance_m must be in (0, 1] m, got {self.match_tolerance_m!r}")
+        if not (isinstance(self.window, int) and 1 <= self.window <= 1000):
+            raise ValueError(f"height.window must be an integer in [1, 1000], got {self.window!r}")
+        if not (math.isfinite(self.seen_fraction) and 0.0 < self.seen_fraction <= 1.0):
+            raise ValueError(f"height.seen_fraction must be in (0, 1], got {self.seen_fraction!r}")
+        if not (math.isfinite(self.jump_m) and self.jump_m > 0.0):
+            raise ValueError(f"height.jump_m must be > 0 m, got {self.jump_m!r}")
+
+    @property
+    def n_contexts(self) -> int:
+        """Number of context indices: 0 .. number of beams."""
+        return len(self.beam_heights_m) + 1
+
+
+class HeightEstimator:
+    """Context index (height bin) of the target in view, from profile samples and the filtered range.
+
+    ``samples``: profile samples offered; ``votes``: those that voted (a target was in view).
+    """
+
+    def __init__(self, config: HeightEstimatorConfig = HeightEstimatorConfig()) -> None:
+        self.config = config
+        self.n_contexts = config.n_contexts
+        self._n_beams = len(config.beam_heights_m)
+        self._votes: deque[tuple[bool, ...]] = deque(maxlen=config.window)
+        self._last_range_m = math.nan
+        self.samples = 0
+        self.votes = 0
+
+    def clear(self) -> None:
+        """Forget the votes (no target in view)."""
+        self._votes.clear()
+        self._last_range_m = math.nan
+
+    def beams_on_target(self, profile_m: tuple[float | None, ...], range_m: float) -> tuple[bool, ...]:
+        """For each configured beam (lowest first): does it read within the tolerance of ``range_m``?
+        Beams missing from a short profile read nothing."""
+        tol = self.config.match_tolerance_m
+        padded = tuple(profile_m[: self._n_beams]) + (None,) * max(0, self._n_beams - len(profile_m))
+        return tuple(d is not None and abs(d - range_m) <= tol for d in padded)
+
+    def update(self, profile_m: tuple[float | None, ...], range_m: float | None) -> None:
+        """One profile sample (distances [m] lowest beam first, None: no return) with the filtered
+        range at that moment (None: no target in view, which clears the votes)."""
+        self.samples += 1
+        if range_m is None or not math.isfinite(range_m):
+            self.clear()
+            return
+        if not math.isnan(self._last_range_m) and abs(range_m - self._last_range_m) > self.config.jump_m:
+            self._votes.clear()
+        self._last_range_m = range_m
+        self._votes.append(self.beams_on_target(profile_m, range_m))
+        self.votes += 1
+
+    @property
+    def context(self) -> int | None:
+        """The number of beams that saw the target in at least ``seen_fraction`` of the recent
+        samples, or None with no votes."""
+        votes = self._votes
+        if not votes:
+            return None
+        need = self.config.seen_fraction * len(votes) - 1e-9
+        return sum(1 for k in range(self._n_beams) if sum(v[k] for v in votes) >= need)
+
+    def bounds_m(self, context: int) -> tuple[float, float]:
+        """The obstacle heights a context stands for [m]: (lower, upper); 0 and inf at the ends."""
+        if not 0 <= context < self.n_contexts:
+            raise ValueError(f"context must be in [0, {self.n_contexts - 1}], got {context!r}")
+        h = self.config.beam_heights_m
+        return (0.0 if context == 0 else h[context - 1], math.inf if context == self._n_beams else h[context])

@@ -1,0 +1,201 @@
+"""The ``controller`` process: the controller daemon at its fixed rate on a real CAN bus.
+
+:class:`controller.loop.ControlLoop` (unchanged) ticks on the monotonic clock, paced by
+:class:`hil.pacing.Pacer` (missed periods are skipped, never bunched). Everything it knows
+comes from the bus. With ``records``, it writes its own records as JSON lines: ``phase``
+(every phase change), ``step`` (each step cycle once complete: gated range, cell, burst change
+asked for, burst length, swing), ``reflex`` (each reflex, with the weights' L1 norm after it)
+and a ``final`` line at exit (loop counters, pacing, frames, weights). Times are the monotonic
+clock of this machine (or VM), the clock the firmware-sim process stamps its ground truth with.
+
+SIGTERM or SIGINT stops it cleanly: every axis is sent Set_Axis_State(IDLE), the records are
+closed and, with ``weights``, the learned weights are saved.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from array import array
+import math
+import os
+import signal
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+import can
+import numpy as np
+
+from controller.config import ControllerConfig
+from controller.loop import ControlLoop, StepRecord
+from controller.supervisor import Phase
+from hil.fastbus import lean
+from hil.pacing import Pacer
+from protocol import AxisState
+
+log = logging.getLogger(__name__)
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else x
+
+
+def step_dict(s: StepRecord) -> dict[str, Any]:
+    return {
+        "kind": "step", "index": s.index, "onset_s": s.onset_s, "burst_s": _num(s.burst_s),
+        "swing_s": _num(s.swing_s), "swing_start_s": _num(s.swing_start_s), "gated_range_m": s.gated_range_m,
+        "cell": s.cell, "modulation_s": s.modulation_s, "amplitude": s.amplitude, "context": s.context,
+    }
+
+
+class Records:
+    def __init__(self, path: str | Path | None) -> None:
+        self.f: TextIO | None = open(path, "w", buffering=1 << 16) if path else None
+        self.steps_written = 0
+        self.reflexes_written = 0
+
+    def write(self, obj: dict[str, Any]) -> None:
+        if self.f is not None:
+            self.f.write(json.dumps(obj) + "\n")
+
+    def flush(self) -> None:
+        if self.f is not None:
+            self.f.flush()
+
+    def close(self) -> None:
+        if self.f is not None:
+            self.f.close()
+            self.f = None
+
+
+def weights_of(premotor) -> np.ndarray | None:
+    w = getattr(premotor, "weights", None)
+    return None if w is None else np.asarray(w, dtype=float)
+
+
+def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = ControllerConfig(), *,
+                   records: str | Path | None = None, weights: str | Path | None = None,
+                   ticks: str | Path | None = None, duration_s: float | None = None) -> dict[str, Any]:
+    """Run until SIGTERM/SIGINT or ``duration_s``. ``ticks``: write, for every tick, its clock and
+    the number of frames it read from the bus (pairs of float64, native byte order; the count is
+    -1 on a bus that does not count), so ``replay`` can tick as the live loop did."""
+    stop = {"flag": False}
+
+    def on_signal(signum, frame):  # noqa: ARG001
+        stop["flag"] = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+
+    raw_bus = can.Bus(**bus_kw)
+    bus = lean(raw_bus, timestamps=False)
+    loop = ControlLoop(config, bus)
+    rec = Records(records)
+    pacer = Pacer(config.period_s, catch_up=False, late_factor=config.late_factor)
+    phase = None
+    stats = loop.stats
+    flush_every = max(1, int(round(0.1 * config.rate_hz)))
+    rec.write({"kind": "clock", "realtime_minus_monotonic_s": time.time() - time.monotonic()})
+    tick_file = open(ticks, "wb") if ticks else None
+    tick_buf = array("d")
+    received = getattr(bus, "received", 0)
+    t0 = pacer.start()
+    t_end = math.inf if duration_s is None else t0 + duration_s
+    log.info("controller on %s at %.0f Hz", bus_kw, config.rate_hz)
+    try:
+        while not stop["flag"]:
+            now = pacer.wait()
+            if now >= t_end:
+                break
+            loop.tick(now)
+            if tick_file is not None:
+                got = getattr(bus, "received", None)
+                tick_buf.append(now)
+                tick_buf.append(-1.0 if got is None else float(got - received))
+                received = got
+                if len(tick_buf) >= 512:
+                    tick_buf.tofile(tick_file)
+                    del tick_buf[:]
+            if loop.phase is not phase:
+                phase = loop.phase
+                rec.write({"kind": "phase", "phase": phase.value, "t_s": now,
+                           "fault_cause": loop.supervisor.fault_cause or None})
+                rec.flush()
+            steps = stats.steps
+            while rec.steps_written < len(steps) - 1:  # the last one is still being lived
+                rec.write(step_dict(steps[rec.steps_written]))
+                rec.steps_written += 1
+            reflexes = stats.reflexes
+            if rec.reflexes_written < len(reflexes):
+                w = weights_of(loop.premotor)
+                while rec.reflexes_written < len(reflexes):
+                    r = reflexes[rec.reflexes_written]
+                    rec.write({"kind": "reflex", "reflex": r.kind, "t_s": r.t_s, "cause": r.cause, "swing": r.swing,
+                               "phase": r.phase, "weights_l1": None if w is None else float(np.abs(w).sum())})
+                    rec.reflexes_written += 1
+            if stats.ticks % flush_every == 0:
+                rec.flush()
+    finally:
+        # A clean stop: the axes go to IDLE on our word, not on their watchdogs.
+        for _ in range(3):
+            for a in loop.axes:
+                try:
+                    bus.send(a.state_frame(AxisState.IDLE))
+                except can.CanError:
+                    pass
+            time.sleep(0.01)
+        if tick_file is not None:
+            tick_buf.tofile(tick_file)
+            tick_file.close()
+        for s in stats.steps[rec.steps_written:]:
+            rec.write(step_dict(s))
+        w = weights_of(loop.premotor)
+        final = {
+            "kind": "final",
+            "phase": loop.phase.value,
+            "fault_cause": loop.supervisor.fault_cause or None,
+            "ticks": stats.ticks,
+            "command_ticks": stats.command_ticks,
+            "late_ticks": stats.late_ticks,
+            "max_period_us": stats.max_period_s * 1e6,
+            "pacing": pacer.summary(),
+            "cpu_s": sum(os.times()[:2]),
+            "steps": len(stats.steps),
+            "reflexes": len(stats.reflexes),
+            "frames_tx": dict(sorted(loop.io.tx.items())),
+            "frames_rx": dict(sorted(loop.io.rx.items())),
+            "frames_dropped": dict(sorted(loop.io.dropped.items())),
+            "weights": None if w is None else w.tolist(),
+        }
+        rec.write(final)
+        rec.close()
+        if weights is not None and w is not None:
+            from controller.weights import save_weights
+
+            save_weights(weights, w, config.encoder.cell_width_m)
+        raw_bus.shutdown()
+    return final
+
+
+def read_records(path: str | Path) -> dict[str, list[dict[str, Any]]]:
+    out: dict[str, list[dict[str, Any]]] = {"phase": [], "step": [], "reflex": [], "final": []}
+    for line in Path(path).read_text().splitlines():
+        if not line.strip():
+            continue
+        try:
+            obj = json.loads(line)
+        except ValueError:
+            continue  # a line cut short by a kill
+        out.setdefault(obj.get("kind", "other"), []).append(obj)
+    return out
+
+
+def phases_seen(path: str | Path) -> list[str]:
+    try:
+        return [r["phase"] for r in read_records(path)["phase"]]
+    except FileNotFoundError:
+        return []
+
+
+__all__ = ["run_controller", "read_records", "phases_seen", "Phase"]

@@ -1,0 +1,97 @@
+"""A lean front for python-can's SocketCAN bus, for the real-time processes.
+
+python-can's ``SocketcanBus.recv(timeout=0)`` costs a ``select`` and a ``recvmsg`` per frame, and
+``send`` a clock read, a ``select`` and a ``send``. Inside User-Mode Linux every system call is
+a ptrace round trip (about 20 us, measured), so these add up to a good part of a CPU at our
+frame rates. :class:`LeanSocketcan` keeps the bus python-can opened (its configuration,
+filters, timestamps, frame layout) and only trims the calls: the socket is made non-blocking,
+``recv(0)`` is one ``recvmsg`` (``EAGAIN``: no frame), ``send`` one ``send``. Any other bus, or
+a ``recv`` with a timeout, goes to python-can unchanged.
+
+With ``timestamps=False`` (the controller and the plant: neither reads a frame's timestamp)
+frames are read with a plain ``recv``: no kernel timestamp (``timestamp`` is 0.0), and no
+source address, whose conversion costs CPython an extra ``ioctl(SIOCGIFNAME)`` per frame.
+"""
+
+from __future__ import annotations
+
+import errno
+
+import can
+
+try:
+    from can.interfaces.socketcan import constants as _c
+    from can.interfaces.socketcan.socketcan import SocketcanBus, build_can_frame, capture_message, dissect_can_frame
+except ImportError:  # pragma: no cover - python-can without socketcan support (not Linux)
+    SocketcanBus = None
+
+
+def _capture_plain(sock) -> can.Message:
+    try:
+        cf = sock.recv(_c.CANFD_MTU)
+    except OSError as error:
+        raise can.CanOperationError(f"Error receiving: {error.strerror}", error.errno) from error
+    can_id, can_dlc, flags, data = dissect_can_frame(cf)
+    ext = bool(can_id & _c.CAN_EFF_FLAG)
+    return can.Message(
+        timestamp=0.0,
+        arbitration_id=can_id & (0x1FFFFFFF if ext else 0x7FF),
+        is_extended_id=ext,
+        is_remote_frame=bool(can_id & _c.CAN_RTR_FLAG),
+        is_error_frame=bool(can_id & _c.CAN_ERR_FLAG),
+        is_fd=len(cf) == _c.CANFD_MTU,
+        bitrate_switch=bool(flags & _c.CANFD_BRS),
+        error_state_indicator=bool(flags & _c.CANFD_ESI),
+        dlc=can_dlc,
+        data=data,
+    )
+
+
+class LeanSocketcan:
+    def __init__(self, bus: can.BusABC, timestamps: bool = True) -> None:
+        self.bus = bus
+        self.socket = bus.socket
+        self.socket.setblocking(False)
+        self.channel_info = getattr(bus, "channel_info", "")
+        self.received = 0  # frames handed out by recv
+        self._capture = capture_message if timestamps else _capture_plain
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if timeout:
+            self.socket.setblocking(True)
+            try:
+                msg = self.bus.recv(timeout)
+                self.received += msg is not None
+                return msg
+            finally:
+                self.socket.setblocking(False)
+        try:
+            msg = self._capture(self.socket)
+            self.received += 1
+            return msg
+        except can.CanOperationError as exc:
+            if exc.error_code in (errno.EAGAIN, errno.EWOULDBLOCK):
+                return None
+            raise
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:  # noqa: ARG002
+        data = build_can_frame(msg)
+        try:
+            sent = self.socket.send(data)
+        except OSError as error:
+            raise can.CanOperationError(f"Failed to transmit: {error.strerror}", error.errno) from error
+        if sent != len(data):
+            raise can.CanOperationError("Transmit buffer full")
+
+    def shutdown(self) -> None:
+        self.bus.shutdown()
+
+    def __getattr__(self, name):
+        return getattr(self.bus, name)
+
+
+def lean(bus: can.BusABC, timestamps: bool = True):
+    """``bus`` behind :class:`LeanSocketcan` if it is a SocketCAN bus, else ``bus`` itself."""
+    if SocketcanBus is not None and isinstance(bus, SocketcanBus):
+        return LeanSocketcan(bus, timestamps=timestamps)
+    return bus
