@@ -1,9 +1,13 @@
 """The harness that joins the controller and the simulated leg.
 
 In-process lockstep over python-can's ``virtual`` bus (:mod:`hil.lockstep`, for tests and fast
-experiments), experiments and their JSON (:mod:`hil.walk`), benchmarks (:mod:`hil.bench`),
-fault injection on the bus (:mod:`hil.faults`) and the ``elegant-stepping`` command line
-(:mod:`hil.cli`).
+experiments); the learning experiment (:mod:`hil.learn`), its baselines (:mod:`hil.methods`,
+:mod:`hil.oracle`), sweeps on a process pool or Dask (:mod:`hil.sweep`, :mod:`hil.report`),
+analysis and figures (:mod:`hil.analysis`, :mod:`hil.figures`, :mod:`hil.animation`);
+hardware-in-the-loop over SocketCAN, inside User-Mode Linux where the kernel has no CAN
+(:mod:`hil.hilrun`, :mod:`hil.uml`, :mod:`hil.replay`); benchmarks (:mod:`hil.bench`,
+:mod:`hil.bench_hil`); fault injection on the bus (:mod:`hil.faults`) and the ``elegant-stepping``
+command line (:mod:`hil.cli`).
 
 May import everything: ``controller``, ``firmware_sim``, ``protocol``, ``urdf``. It is the only
 package that sees both sides of the bus.

@@ -28,6 +28,7 @@ Each figure is reported beside its floor with ``ratio`` = figure / floor (None w
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -233,10 +234,13 @@ def run_hil_pair(seconds: float, work: Path, channel: str, seed: int, bringup_ti
     """The controller daemon and the firmware-sim process walking for ``seconds``."""
     from hil.configfile import controller_config_to_dict
     from hil.controller_proc import read_records
-    from hil.hilrun import BusRecorder, HilError, ScenarioClient, stop_session
+    from hil.hilrun import UML_HEARTBEAT_TIMEOUT_S, BusRecorder, HilError, ScenarioClient, stop_session
+    from hil.uml import in_uml
     from hil.learn import LearnConfig
 
     ctl_config = LearnConfig(trials=1, seed=seed).lockstep().controller
+    if in_uml():  # as hil does: one virtual CPU for everything (see hil.hilrun.UML_HEARTBEAT_TIMEOUT_S)
+        ctl_config = dataclasses.replace(ctl_config, heartbeat_timeout_s=UML_HEARTBEAT_TIMEOUT_S)
     (work / "controller.json").write_text(json.dumps(controller_config_to_dict(ctl_config)) + "\n")
     records_path, ticks_path = work / "controller.jsonl", work / "controller.ticks"
     recorder = BusRecorder(channel, work / "bus.log")
