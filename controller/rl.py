@@ -85,6 +85,16 @@ class QLearningPremotor:
         cell, a = self._prev
         self.q[cell, a] += self.config.alpha * (target - self.q[cell, a])
 
+    def _close_episode(self) -> None:
+        """The terminal update: +1 for an approach without a contact reflex, -1 with one."""
+        reward = -1.0 if self._failed else 1.0
+        self._update(reward)
+        self.returns.append(reward)
+        self.episodes += 1
+        self._prev = None
+        self._failed = False
+        self._closing = False
+
     def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
         c = self.config
         if cell is None:
@@ -92,13 +102,7 @@ class QLearningPremotor:
             # next step onset, so the terminal reward waits for the second empty gate
             if self._prev is not None:
                 if self._closing:
-                    reward = -1.0 if self._failed else 1.0
-                    self._update(reward)
-                    self.returns.append(reward)
-                    self.episodes += 1
-                    self._prev = None
-                    self._failed = False
-                    self._closing = False
+                    self._close_episode()
                 else:
                     self._closing = True
             self._action = 0.0
@@ -106,11 +110,7 @@ class QLearningPremotor:
         if self._prev is not None and not self._closing:
             self._update(c.gamma * float(self.q[cell].max()))
         elif self._prev is not None:  # a new approach before the last one closed: close it now
-            self._update(-1.0 if self._failed else 1.0)
-            self.returns.append(-1.0 if self._failed else 1.0)
-            self.episodes += 1
-            self._failed = False
-            self._closing = False
+            self._close_episode()
         a = self._choose(cell)
         self._prev = (cell, a)
         self._action = float(self.actions[a])

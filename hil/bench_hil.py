@@ -28,7 +28,6 @@ Each figure is reported beside its floor with ``ratio`` = figure / floor (None w
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import os
@@ -234,13 +233,11 @@ def run_hil_pair(seconds: float, work: Path, channel: str, seed: int, bringup_ti
     """The controller daemon and the firmware-sim process walking for ``seconds``."""
     from hil.configfile import controller_config_to_dict
     from hil.controller_proc import read_records
-    from hil.hilrun import UML_HEARTBEAT_TIMEOUT_S, BusRecorder, HilError, ScenarioClient, stop_session
-    from hil.uml import in_uml
+    from hil.hilrun import (BusRecorder, HilError, ScenarioClient, session_controller_config, session_envs,
+                            stop_session)
     from hil.learn import LearnConfig
 
-    ctl_config = LearnConfig(trials=1, seed=seed).lockstep().controller
-    if in_uml():  # as hil does: one virtual CPU for everything (see hil.hilrun.UML_HEARTBEAT_TIMEOUT_S)
-        ctl_config = dataclasses.replace(ctl_config, heartbeat_timeout_s=UML_HEARTBEAT_TIMEOUT_S)
+    ctl_config = session_controller_config(LearnConfig(trials=1, seed=seed))
     (work / "controller.json").write_text(json.dumps(controller_config_to_dict(ctl_config)) + "\n")
     records_path, ticks_path = work / "controller.jsonl", work / "controller.ticks"
     recorder = BusRecorder(channel, work / "bus.log")
@@ -248,11 +245,7 @@ def run_hil_pair(seconds: float, work: Path, channel: str, seed: int, bringup_ti
     py = [sys.executable, "-m", "hil.cli"]
     bus_args = ["--interface", "socketcan", "--channel", channel]
     addr = f"@elegant-stepping-bench-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    fw_env = dict(env)
-    coarse = os.environ.get("ELEGANT_STEPPING_UML_COARSE_TIME")
-    if coarse and os.path.exists(coarse) and os.environ.get("ELEGANT_STEPPING_IN_UML") == "1":
-        fw_env["LD_PRELOAD"] = coarse  # as in hilrun: PyBullet's gettimeofday() is a trapped call in UML
+    env, fw_env = session_envs()
     fw_log, ctl_log = open(work / "firmware.log", "w"), open(work / "controller.log", "w")
     t0 = time.monotonic()
     firmware = subprocess.Popen([*py, "firmware-sim", *bus_args, "--seed", str(seed), "--scenario", addr],

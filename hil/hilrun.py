@@ -38,13 +38,17 @@ import threading
 import time
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 import numpy as np
 
 from hil.busload import bus_load_from_log
 from hil.controller_proc import phases_seen, read_records
+
+if TYPE_CHECKING:
+    from controller.config import ControllerConfig
+    from hil.learn import LearnConfig
 
 CONTROLLER_CMDS = frozenset({2, 7, 11, 12, 13, 14, 15, 22, 24, 25, 26, 27})  # DBC sender: Controller
 SET_INPUT_POS, GET_ENCODER_ESTIMATES = 12, 9
@@ -267,6 +271,33 @@ def assemble_trials(truths: list[dict[str, Any]], records: dict[str, list[dict[s
     return trials
 
 
+def session_controller_config(config: LearnConfig) -> ControllerConfig:
+    """The controller configuration of a session on this platform: the learning run's, with the
+    node-silence timeout of :data:`UML_HEARTBEAT_TIMEOUT_S` inside User-Mode Linux.
+
+    User-Mode Linux is one virtual CPU for both processes, the recorder and the harness, and it
+    runs near saturation: a node can look silent for a few hundred ms while the plant catches up
+    (measured: a 0.35 s gap ended a 5-trial session). The drivers' own watchdogs (0.1 s) still
+    stop the leg; the controller waits longer before calling a node lost.
+    """
+    ctl_config = config.lockstep().controller
+    if _in_uml():
+        ctl_config = dataclasses.replace(ctl_config, heartbeat_timeout_s=UML_HEARTBEAT_TIMEOUT_S)
+    return ctl_config
+
+
+def session_envs() -> tuple[dict[str, str], dict[str, str]]:
+    """Environments of the controller and of the firmware-sim process. Inside User-Mode Linux the
+    firmware gets the coarse-clock preload: PyBullet's profiler reads gettimeofday() about 7 times
+    a step, a trapped system call there."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    fw_env = dict(env)
+    coarse = os.environ.get("ELEGANT_STEPPING_UML_COARSE_TIME")
+    if coarse and os.path.exists(coarse) and os.environ.get("ELEGANT_STEPPING_IN_UML") == "1":
+        fw_env["LD_PRELOAD"] = coarse
+    return env, fw_env
+
+
 def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan0", obstacle_height_m: float = 0.08,
                 range_noise_m: float = 0.02, learning: bool = True, log_format: str = "blf",
                 timeout_s: float | None = None, quiet: bool = False, where: str = "native") -> dict[str, Any]:
@@ -282,13 +313,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     work = Path(tempfile.mkdtemp(prefix="es-hil-", dir="/dev/shm")) if _in_uml() and os.path.isdir("/dev/shm") else out
     config = LearnConfig(trials=trials, seed=seed, obstacle_height_m=obstacle_height_m, range_noise_m=range_noise_m,
                          learning=learning)
-    ctl_config = config.lockstep().controller
-    if _in_uml():
-        # User-Mode Linux is one virtual CPU for both processes, the recorder and the harness, and
-        # it runs near saturation: a node can look silent for a few hundred ms while the plant
-        # catches up (measured: a 0.35 s gap ended a 5-trial session). The drivers' own
-        # watchdogs (0.1 s) still stop the leg; the controller waits longer before calling a node lost.
-        ctl_config = dataclasses.replace(ctl_config, heartbeat_timeout_s=UML_HEARTBEAT_TIMEOUT_S)
+    ctl_config = session_controller_config(config)
     (work / "controller.json").write_text(json.dumps(controller_config_to_dict(ctl_config), indent=1) + "\n")
     records_path = work / "controller.jsonl"
     records_path.unlink(missing_ok=True)
@@ -307,12 +332,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     py = [sys.executable, "-m", "hil.cli"]
     bus_args = ["--interface", "socketcan", "--channel", channel]
     addr = f"@elegant-stepping-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    fw_env = dict(env)
-    coarse = os.environ.get("ELEGANT_STEPPING_UML_COARSE_TIME")
-    if coarse and os.path.exists(coarse) and os.environ.get("ELEGANT_STEPPING_IN_UML") == "1":
-        # PyBullet's profiler reads gettimeofday() ~7 times a step, a trapped system call in UML.
-        fw_env["LD_PRELOAD"] = coarse
+    env, fw_env = session_envs()
     fw_log = open(work / "firmware.log", "w")
     ctl_log = open(work / "controller.log", "w")
     firmware = subprocess.Popen(

@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +27,8 @@ def learn_config(method: str, *, seed: int, trials: int, obstacle_height_m: floa
         raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
     heights = tuple(obstacle_height_m) if isinstance(obstacle_height_m, (tuple, list)) else ()
     height = heights[0] if heights else float(obstacle_height_m)
-    config = LearnConfig(trials=trials, seed=seed, obstacle_height_m=height, obstacle_heights_m=heights,
-                         learning=method != "none", **overrides)
-    return replace(config, method=method)
+    return LearnConfig(trials=trials, seed=seed, obstacle_height_m=height, obstacle_heights_m=heights,
+                       learning=method != "none", method=method, **overrides)
 
 
 def run_method(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],
