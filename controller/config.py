@@ -154,7 +154,13 @@ class ControllerConfig:
         learner: gated memory, traces and learning rule.
         height: the obstacle-height estimator (context from the range profile).
         reflexes: contact reflexes and the lift reflex.
-        heartbeat_timeout_s: a node silent this long is lost [s]; default 0.35 (3.5 periods).
+        heartbeat_period_s: the nodes' heartbeat period [s]; default 0.1 (ODrive's
+            ``heartbeat_msg_rate_ms`` = 100, the sensor board's 10 Hz).
+        silence_periods: a node from which no valid frame at all has arrived for this many
+            heartbeat periods is lost (safe stop); default 3.5 (0.35 s). Any accepted frame is a
+            sign of life, so random frame loss does not look like silence.
+        stale_heartbeat_periods: a node whose heartbeat alone has not arrived for this many
+            periods is lost too (its reported state is no longer known); default 10 (1 s).
         bringup_timeout_s: give up bringing the axes up after this long [s]; default 5.0.
         late_factor: a tick whose measured period exceeds this many nominal periods is late;
             default 1.5.
@@ -172,7 +178,9 @@ class ControllerConfig:
     height: HeightEstimatorConfig = HeightEstimatorConfig()
     reflexes: ReflexConfig = ReflexConfig()
     sensor_node_id: int = 16
-    heartbeat_timeout_s: float = 0.35
+    heartbeat_period_s: float = 0.1
+    silence_periods: float = 3.5
+    stale_heartbeat_periods: float = 10.0
     bringup_timeout_s: float = 5.0
     late_factor: float = 1.5
     max_dt_factor: float = 2.0
@@ -182,6 +190,9 @@ class ControllerConfig:
         names = [a.name for a in self.axes]
         if sorted(names) != ["hip", "knee"]:
             raise ValueError(f"axes must be exactly hip and knee, got {names}")
+        _check("heartbeat_period_s", self.heartbeat_period_s, 0.001, 10.0, "s")
+        _check("silence_periods", self.silence_periods, 1.0, 100.0, "periods")
+        _check("stale_heartbeat_periods", self.stale_heartbeat_periods, self.silence_periods, 1000.0, "periods")
         ids = [a.node_id for a in self.axes]
         if len(set(ids)) != len(ids):
             raise ValueError(f"axes node ids must differ, got {ids}")
@@ -189,6 +200,16 @@ class ControllerConfig:
     @property
     def period_s(self) -> float:
         return 1.0 / self.rate_hz
+
+    @property
+    def heartbeat_timeout_s(self) -> float:
+        """A node with no valid frame for this long is lost [s]."""
+        return self.silence_periods * self.heartbeat_period_s
+
+    @property
+    def stale_heartbeat_s(self) -> float:
+        """A node with no heartbeat for this long is lost [s]."""
+        return self.stale_heartbeat_periods * self.heartbeat_period_s
 
     def axis(self, name: str) -> AxisConfig:
         for a in self.axes:

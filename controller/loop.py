@@ -87,7 +87,8 @@ class ControlLoop:
         self.knee = next(a for a in self.axes if a.name == "knee")
         self.sensors = SensorLink(config.sensor_node_id)
         self.io = BusIO(bus, contract, self.axes, self.sensors)
-        self.supervisor = Supervisor(self.axes, self.sensors, config.heartbeat_timeout_s, config.bringup_timeout_s)
+        self.supervisor = Supervisor(self.axes, self.sensors, config.heartbeat_timeout_s, config.bringup_timeout_s,
+                                     config.stale_heartbeat_s)
         self.cpg = RingOscillator(config.cpg)
         self.encoder = RangeEncoder(config.encoder)
         self.range_filter = RangeFilter(config.range_filter)

@@ -1,11 +1,20 @@
 """The sensor board as the controller sees it: range readings, range profile, contact switches,
 heartbeat.
 
-Readings are validated here: a range or profile frame whose sequence counter does not advance
-is a duplicate or out of order and is rejected; a gap is counted as lost samples. A profile
-frame with a beam that is neither "no return" (0xFFFF, 65.535 m) nor a distance in
-[0, ``profile_max_m``] (or is NaN) is rejected whole. Filtering of the range (Kalman) belongs to
-the learner's range filter, and the height estimate to :mod:`controller.height`, not here.
+Readings are validated here, and a frame is applied whole or not at all: a handler returns
+False (the frame is counted ``invalid`` and dropped by :class:`controller.bus_io.BusIO`) for
+
+- a range, profile or contacts frame whose sequence counter does not advance (a duplicate or
+  out of order; a gap is counted as lost samples);
+- a range frame whose Range_Valid is neither 0 nor 1, or which is valid with a range that is
+  NaN or outside [0, ``range_max_m``] (the sensor's reach; the board clips to it);
+- a profile frame with a beam that is neither "no return" (0xFFFF, 65.535 m) nor a distance in
+  [0, ``profile_max_m``] (or is NaN): rejected whole;
+- a contacts frame with a switch that is neither 0 nor 1.
+
+Values are checked before the sequence number, so a bad frame does not move the counter.
+Filtering of the range (Kalman) belongs to the learner's range filter, and the height estimate
+to :mod:`controller.height`, not here.
 """
 
 from __future__ import annotations
@@ -14,7 +23,9 @@ import math
 
 PROFILE_NO_RETURN_M = 65.535  # SB_Profile's raw 0xFFFF at 1 mm: no return in that beam
 PROFILE_MAX_M = 3.0  # the profile beams' reach [m]; a closer-than-no-return reading beyond it is invalid
+RANGE_MAX_M = 3.0  # the range finder's reach [m] (the board clips its readings to it)
 _NO_RETURN_FROM_M = PROFILE_NO_RETURN_M - 0.0005  # half a raw step below the sentinel
+_HALF_MM = 0.0005  # half a raw step of SB_Range / SB_Profile (1 mm): decoding rounds within it
 
 
 class SensorLink:
@@ -23,13 +34,19 @@ class SensorLink:
     ``profile_m``: the last accepted profile, one entry per beam (lowest first), each a distance
     [m] or None (no return); empty until the first profile frame. ``profile_max_m``: the
     beams' reach [m], default 3.0 (readings beyond it, other than "no return", are invalid).
+    ``range_max_m``: the range finder's reach [m], default 3.0 (a valid reading beyond it is
+    invalid). ``*_invalid`` and ``*_out_of_sequence`` count the frames each check rejected.
     """
 
-    def __init__(self, node_id: int, profile_max_m: float = PROFILE_MAX_M) -> None:
+    def __init__(self, node_id: int, profile_max_m: float = PROFILE_MAX_M, range_max_m: float = RANGE_MAX_M) -> None:
         if not (math.isfinite(profile_max_m) and 0.0 < profile_max_m < PROFILE_NO_RETURN_M):
             raise ValueError(f"profile_max_m must be in (0, {PROFILE_NO_RETURN_M}) m, got {profile_max_m!r}")
+        if not (math.isfinite(range_max_m) and 0.0 < range_max_m <= PROFILE_NO_RETURN_M):
+            raise ValueError(f"range_max_m must be in (0, {PROFILE_NO_RETURN_M}] m, got {range_max_m!r}")
         self.node_id = node_id
         self.profile_max_m = profile_max_m
+        self.range_max_m = range_max_m
+        self._range_top_m = range_max_m + _HALF_MM
         self.range_m = math.nan
         self.range_valid = False
         self.range_seq = -1
@@ -37,11 +54,14 @@ class SensorLink:
         self.range_samples = 0
         self.range_lost = 0
         self.range_out_of_sequence = 0
+        self.range_invalid = 0
         self.foot = False
         self.shin = False
         self.contacts_seq = -1
         self.contacts_t_s = -math.inf
         self.contacts_lost = 0
+        self.contacts_out_of_sequence = 0
+        self.contacts_invalid = 0
         self.profile_m: tuple[float | None, ...] = ()
         self.profile_seq = -1
         self.profile_t_s = -math.inf
@@ -62,7 +82,14 @@ class SensorLink:
         return delta if delta < 128 else delta - 256
 
     def on_range(self, values: tuple, now_s: float) -> bool:
+        """SB_Range: (range_m, valid, seq). False (dropped) for a Range_Valid other than 0/1, a
+        valid range that is NaN or outside [0, range_max_m], or a sequence number that does not
+        advance. An invalid sample (Range_Valid 0: a dropout) is accepted, with no range."""
         range_m, valid, seq = values
+        if valid:
+            if valid != 1 or not 0.0 <= range_m <= self._range_top_m:  # False for NaN too
+                self.range_invalid += 1
+                return False
         step = self._advance(self.range_seq, int(seq))
         if step <= 0:
             self.range_out_of_sequence += 1
@@ -70,8 +97,8 @@ class SensorLink:
         self.range_lost += step - 1
         self.range_seq = int(seq)
         self.range_samples += 1
-        self.range_valid = bool(valid) and math.isfinite(range_m)
-        self.range_m = float(range_m) if self.range_valid else math.nan
+        self.range_valid = bool(valid)
+        self.range_m = float(range_m) if valid else math.nan
         self.range_t_s = now_s
         return True
 
@@ -104,9 +131,15 @@ class SensorLink:
         return True
 
     def on_contacts(self, values: tuple, now_s: float) -> bool:
+        """SB_Contacts: (foot, shin, seq). False (dropped) for a switch other than 0/1 or a
+        sequence number that does not advance."""
         foot, shin, seq = values
+        if foot not in (0, 1) or shin not in (0, 1):
+            self.contacts_invalid += 1
+            return False
         step = self._advance(self.contacts_seq, int(seq))
         if step <= 0:
+            self.contacts_out_of_sequence += 1
             return False
         self.contacts_lost += step - 1
         self.contacts_seq = int(seq)

@@ -7,7 +7,15 @@ ARMING      Clear_Errors, Set_Controller_Mode(POSITION_CONTROL, PASSTHROUGH) and
 RAMP        a smooth move from the pose found at bring-up to the gait's start pose.
 WALK        the CPG runs.
 FAULT       an axis left closed loop or reported an error, or a node went silent: every axis is
-            sent IDLE (repeated each heartbeat period) and no position target is sent again.
+            sent IDLE (repeated each heartbeat period), no position target is sent again and
+            learning is paused (the premotor hears no more gates or reflexes). The cause and
+            the time are kept (``fault_cause``, ``fault_t_s``) and logged. FAULT is latched:
+            only a restart of the controller leaves it.
+
+A node is silent when no valid frame at all has come from it for ``silence_timeout_s`` (any
+accepted frame is a sign of life: an axis's encoder estimates at 500 Hz, the sensor board's
+readings at 50-200 Hz, so random frame loss does not look like silence), or when its heartbeat
+alone has not come for ``stale_heartbeat_s`` (its reported state would no longer be known).
 """
 
 from __future__ import annotations
@@ -33,15 +41,17 @@ class Phase(enum.Enum):
 class Supervisor:
     ARM_RETRY_S = 0.5
 
-    def __init__(self, axes: list[AxisLink], sensors: SensorLink, heartbeat_timeout_s: float,
-                 bringup_timeout_s: float) -> None:
+    def __init__(self, axes: list[AxisLink], sensors: SensorLink, silence_timeout_s: float,
+                 bringup_timeout_s: float, stale_heartbeat_s: float = math.inf) -> None:
         self.axes = axes
         self.sensors = sensors
-        self.heartbeat_timeout_s = heartbeat_timeout_s
+        self.silence_timeout_s = silence_timeout_s
+        self.stale_heartbeat_s = max(stale_heartbeat_s, silence_timeout_s)
         self.bringup_timeout_s = bringup_timeout_s
         self.phase = Phase.WAIT_NODES
         self.phase_t_s = math.nan
         self.fault_cause = ""
+        self.fault_t_s = math.nan
         self.last_arm_request_s = -math.inf
 
     def enter(self, phase: Phase, now_s: float) -> None:
@@ -52,14 +62,21 @@ class Supervisor:
     def fault(self, cause: str, now_s: float) -> None:
         if self.phase is not Phase.FAULT:
             self.fault_cause = cause
+            self.fault_t_s = now_s
             log.error("safe stop at t=%.3f s: %s", now_s, cause)
             self.enter(Phase.FAULT, now_s)
 
-    def silent_nodes(self, now_s: float) -> list[str]:
-        out = [a.name for a in self.axes if now_s - a.heartbeat_t_s > self.heartbeat_timeout_s]
-        if now_s - self.sensors.heartbeat_t_s > self.heartbeat_timeout_s:
-            out.append("sensor_board")
+    def _last_seen(self) -> list[tuple[str, float, float]]:
+        """(node, last valid frame of any kind, last heartbeat) for every node [s]."""
+        s = self.sensors
+        out = [(a.name, max(a.heartbeat_t_s, a.encoder_t_s), a.heartbeat_t_s) for a in self.axes]
+        out.append(("sensor_board", max(s.heartbeat_t_s, s.range_t_s, s.contacts_t_s, s.profile_t_s), s.heartbeat_t_s))
         return out
+
+    def silent_nodes(self, now_s: float) -> list[str]:
+        """Nodes silent (no valid frame for ``silence_timeout_s``) or whose heartbeat is stale."""
+        return [name for name, seen, beat in self._last_seen()
+                if now_s - seen > self.silence_timeout_s or now_s - beat > self.stale_heartbeat_s]
 
     def update(self, now_s: float) -> None:
         """Move between phases on what the bus has said; never sends anything itself."""
@@ -67,7 +84,8 @@ class Supervisor:
             self.phase_t_s = now_s
         phase = self.phase
         if phase is Phase.WAIT_NODES:
-            if not self.silent_nodes(now_s) and all(math.isfinite(a.pos_rad) for a in self.axes):
+            heard = all(now_s - beat <= self.silence_timeout_s for _, _, beat in self._last_seen())
+            if heard and all(math.isfinite(a.pos_rad) for a in self.axes):
                 self.enter(Phase.ARMING, now_s)
             elif now_s - self.phase_t_s > self.bringup_timeout_s:
                 self.fault(f"no heartbeat or encoder from {self.silent_nodes(now_s) or 'an axis'}", now_s)
@@ -78,10 +96,10 @@ class Supervisor:
                 states = {a.name: (a.state.name, hex(a.error)) for a in self.axes}
                 self.fault(f"axes did not reach closed loop: {states}", now_s)
         elif phase in (Phase.RAMP, Phase.WALK):
-            oldest = min(self.sensors.heartbeat_t_s, *(a.heartbeat_t_s for a in self.axes))
-            if now_s - oldest > self.heartbeat_timeout_s:
-                silent = self.silent_nodes(now_s)
-                self.fault(f"node(s) silent for more than {self.heartbeat_timeout_s} s: {silent}", now_s)
+            silent = self.silent_nodes(now_s)
+            if silent:
+                self.fault(f"node(s) silent for more than {self.silence_timeout_s:g} s (or no heartbeat for "
+                           f"{self.stale_heartbeat_s:g} s): {silent}", now_s)
                 return
             for a in self.axes:
                 if not a.closed_loop:

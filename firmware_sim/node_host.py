@@ -9,8 +9,11 @@ three in that order).
 Frames for node ids not hosted here are another node's traffic: ignored, counted in
 ``stats["foreign"]``. Extended-id and error frames are counted in ``stats["unknown"]``. A send
 that fails with :class:`can.CanError` is counted in ``stats["send_errors"]``, never raised; a
-node's ``handle`` that raises (it should not) is counted in ``stats["node_errors"]``.
-The hot path does no logging and allocates no dicts.
+receive that fails with :class:`can.CanError` (or ``OSError``) is counted in
+``stats["recv_errors"]`` and ends that poll (the next poll reads the same bus again); a node's
+``handle`` that raises (it should not) is counted in ``stats["node_errors"]``. Nothing a frame
+contains can raise out of :meth:`NodeHost.poll`. The hot path does no logging and allocates no
+dicts.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ class NodeHost:
     """Route bus traffic to simulated nodes and publish their frames.
 
     ``stats``: ``rx`` (frames read from the bus), ``tx`` (frames sent), ``foreign``,
-    ``unknown``, ``send_errors``, ``node_errors``.
+    ``unknown``, ``send_errors``, ``recv_errors``, ``node_errors``.
     """
 
     def __init__(self, bus: can.BusABC, nodes: Sequence[Node]) -> None:
@@ -59,6 +62,7 @@ class NodeHost:
             "foreign": 0,
             "unknown": 0,
             "send_errors": 0,
+            "recv_errors": 0,
             "node_errors": 0,
         }
 
@@ -76,8 +80,14 @@ class NodeHost:
         by_id = self._by_id
         stats = self.stats
         count = 0
-        msg = recv(0)
-        while msg is not None:
+        while True:
+            try:
+                msg = recv(0)
+            except (can.CanError, OSError):
+                stats["recv_errors"] += 1
+                break
+            if msg is None:
+                break
             count += 1
             if msg.is_extended_id or msg.is_error_frame:
                 stats["unknown"] += 1
@@ -93,7 +103,6 @@ class NodeHost:
                         replies = ()
                     for reply in replies:
                         self._send(reply)
-            msg = recv(0)
         stats["rx"] += count
         return count
 

@@ -32,14 +32,33 @@ Behaviour, and where the simulation simplifies the firmware:
   input_torque. Non-finite values reject the whole frame (``stats["malformed"]``). A position
   target outside [pos_min_rev, pos_max_rev] is accepted and counted in
   ``stats["targets_outside_limits"]``.
-- **Errors.** Estop latches ESTOP_REQUESTED and disarms; the watchdog latches
-  WATCHDOG_TIMER_EXPIRED and disarms. Both stay active (refusing closed loop) until
-  Clear_Errors, which also clears Disarm_Reason and the Procedure_Result. Heartbeat.Axis_Error
-  reports ``active_errors | disarm_reason`` as firmware 0.6 does.
+- **Errors.** Estop latches ESTOP_REQUESTED and disarms (in any state, IDLE included); the
+  watchdog latches WATCHDOG_TIMER_EXPIRED and disarms; a joint pushed past its limit latches
+  POSITION_LIMIT_VIOLATION and disarms. Each stays active (refusing closed loop: the axis stays
+  IDLE with Procedure_Result DISARMED) until Clear_Errors, which also clears Disarm_Reason and
+  the Procedure_Result; Set_Axis_State(IDLE) and calibration requests do not clear them, a
+  reboot does (power-on state). Heartbeat.Axis_Error reports ``active_errors | disarm_reason``
+  as firmware 0.6 does. ``stats["estops"]``, ``stats["watchdog_trips"]``,
+  ``stats["position_limit_trips"]`` and ``stats["missing_estimate_trips"]`` count the events
+  (an Estop while already latched counts too; a trip happens only in closed loop).
 - **Watchdog.** With ``watchdog_timeout_s > 0`` and the axis in CLOSED_LOOP_CONTROL, every
   well-formed non-RTR frame addressed to the node feeds it (malformed frames, RTR requests and
-  zero-length Get_* requests do not); entering closed loop feeds it. It is checked in
-  :meth:`update` and before each received frame is processed.
+  zero-length Get_* requests do not, nor do other nodes' frames); entering closed loop feeds
+  it, so an axis armed after a long idle spell does not trip at once. It is checked in
+  :meth:`update` and before each received frame is processed; more than
+  ``watchdog_timeout_s`` since the last feed expires it (exactly the timeout does not). It is
+  not checked outside closed loop (an idle axis accumulates no error). Firmware 0.5's
+  CANSimple feeds the watchdog on every frame addressed to the axis, RTR requests included;
+  the simulation is stricter: a master that only polls cannot keep an axis armed.
+- **Position limits.** With ``pos_min_rev`` / ``pos_max_rev`` set and the axis in
+  CLOSED_LOOP_CONTROL, a position estimate (Set_Absolute_Position offset included) more than
+  ``pos_limit_margin_rev`` outside [pos_min_rev, pos_max_rev] disarms the axis with
+  POSITION_LIMIT_VIOLATION in :meth:`update`, before any torque is applied that step; a NaN
+  estimate (limits or not) disarms it with MISSING_ESTIMATE. The bounds are precomputed: one
+  chained comparison per step.
+- **Torque and current limits.** The torque clamp is ``Kt * min(current_limit_a, motor
+  hardware limit)``: Set_Limits' current limit lowers it, never raises it above the hardware's
+  (:attr:`SimOdriveAxis.torque_limit_nm`).
 - **Get_* requests.** An RTR frame, or a data frame of length 0 (as firmware 0.6 also accepts),
   with a Get_* id is answered with a data frame of the same id and the DBC's length. An RTR for
   a command id, or a data frame with payload for a Get_* id, is malformed.
@@ -155,6 +174,15 @@ class DriverConfig:
                                                                  unbounded
     ``pos_max_rev``             rev            ``None``          upper joint limit, motor side; None:
                                                                  unbounded
+    ``pos_limit_margin_rev``    rev            ``0.02``          in closed loop, a position estimate
+                                                                 more than this outside
+                                                                 [pos_min_rev, pos_max_rev] is a
+                                                                 POSITION_LIMIT_VIOLATION (disarm).
+                                                                 0.02 rev is 0.021 rad (1.2 deg) at
+                                                                 the joint behind 6:1: 2.6 times the
+                                                                 worst overshoot measured driving a
+                                                                 rig joint into its URDF stop at full
+                                                                 torque (0.0076 rev)
     ``fw_version``              –              ``(0, 6, 10)``    (major, minor, revision) in
                                                                  Get_Version
     ``hw_version``              –              ``(3, 6, 56)``    (major, minor, variant) in
@@ -172,6 +200,7 @@ class DriverConfig:
     watchdog_timeout_s: float = 0.1
     pos_min_rev: float | None = None
     pos_max_rev: float | None = None
+    pos_limit_margin_rev: float = 0.02
     fw_version: tuple[int, int, int] = (0, 6, 10)
     hw_version: tuple[int, int, int] = (3, 6, 56)
 
@@ -186,6 +215,7 @@ class DriverConfig:
             "heartbeat_period_s",
             "encoder_period_s",
             "watchdog_timeout_s",
+            "pos_limit_margin_rev",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -224,7 +254,8 @@ class SimOdriveAxis:
     - ``pos_gain``, ``vel_gain``, ``vel_integrator_gain``, ``vel_limit_rev_s``, ``current_limit_a``;
     - ``torque_setpoint_nm`` (after limiting), ``vel_integrator_nm``;
     - ``stats``: ``{"rx": {name: n}, "tx": {name: n}, "malformed", "unknown", "unsupported",
-      "foreign", "internal_errors", "targets_outside_limits"}``.
+      "foreign", "internal_errors", "targets_outside_limits", "estops", "watchdog_trips",
+      "position_limit_trips", "missing_estimate_trips"}``.
     """
 
     def __init__(self, config: DriverConfig, motor: MotorJoint, contract: BusContract | None = None) -> None:
@@ -278,6 +309,10 @@ class SimOdriveAxis:
         self._hb_period_s = config.heartbeat_period_s
         self._enc_period_s = config.encoder_period_s
         self._watchdog_timeout_s = config.watchdog_timeout_s
+        # Position-limit trip bounds (estimate frame, margin included): one comparison per step.
+        margin = config.pos_limit_margin_rev
+        self._trip_min_rev = -math.inf if config.pos_min_rev is None else config.pos_min_rev - margin
+        self._trip_max_rev = math.inf if config.pos_max_rev is None else config.pos_max_rev + margin
         self._unpack_input_pos = self._codecs[Cmd.SET_INPUT_POS].unpack
         self._hb_last_values: tuple | None = None
         self._hb_last_payload = b""
@@ -291,6 +326,10 @@ class SimOdriveAxis:
             "foreign": 0,
             "internal_errors": 0,
             "targets_outside_limits": 0,
+            "estops": 0,
+            "watchdog_trips": 0,
+            "position_limit_trips": 0,
+            "missing_estimate_trips": 0,
         }
         self._rx = self.stats["rx"]
         self._tx = self.stats["tx"]
@@ -366,6 +405,7 @@ class SimOdriveAxis:
     def _check_watchdog(self, now_s: float) -> None:
         timeout = self._watchdog_timeout_s
         if timeout > 0.0 and self.state is _CLOSED_LOOP and now_s - self._last_feed_s > timeout:
+            self.stats["watchdog_trips"] += 1
             self._disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
 
     # ------------------------------------------------------------------ receive
@@ -418,6 +458,7 @@ class SimOdriveAxis:
 
     # Command handlers: return False when the payload is malformed (non-finite, negative limit).
     def _on_estop(self, data, now_s) -> bool:
+        self.stats["estops"] += 1
         self._disarm(AxisError.ESTOP_REQUESTED)
         return True
 
@@ -568,7 +609,7 @@ class SimOdriveAxis:
 
     # ------------------------------------------------------------------ control loop
     def update(self, now_s: float, dt_s: float) -> None:
-        """One control step at physics rate: watchdog, then the cascade, then the motor torque."""
+        """One control step at physics rate: watchdog, position-limit check, the cascade, the motor torque."""
         self._check_watchdog(now_s)
         motor = self.motor
         raw_pos, vel = motor.motor_state()
@@ -578,6 +619,15 @@ class SimOdriveAxis:
             motor.apply_motor_torque(0.0, vel)
             return
         pos = raw_pos + self.pos_offset_rev
+        if not self._trip_min_rev <= pos <= self._trip_max_rev:  # also true for a NaN estimate
+            if pos != pos:
+                self.stats["missing_estimate_trips"] += 1
+                self._disarm(AxisError.MISSING_ESTIMATE)
+            else:
+                self.stats["position_limit_trips"] += 1
+                self._disarm(AxisError.POSITION_LIMIT_VIOLATION)
+            motor.apply_motor_torque(0.0, vel)
+            return
         mode = self.control_mode
         vel_limit = self.vel_limit_rev_s
         torque_limit = self.torque_limit_nm

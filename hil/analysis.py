@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from controller.weights import read_weights
+
 
 def load_run(folder: str | Path) -> dict[str, Any]:
     folder = Path(folder)
@@ -26,9 +28,7 @@ def load_run(folder: str | Path) -> dict[str, Any]:
         raise ValueError(f"{metrics_path}: not valid JSON ({exc})") from None
     weights_path = folder / "weights.npz"
     if weights_path.exists():
-        with np.load(weights_path, allow_pickle=False) as data:
-            metrics["weights"] = np.array(data["weights"])
-            metrics["cell_width_m"] = float(data["cell_width_m"])
+        metrics["weights"], metrics["cell_width_m"] = read_weights(weights_path)  # WeightsError: a ValueError
     return metrics
 
 

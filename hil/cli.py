@@ -189,9 +189,14 @@ def cmd_controller(args: argparse.Namespace) -> int:
     from hil.controller_proc import run_controller
 
     final = run_controller(_bus_kw(args), load_controller_config(args.config), records=args.records,
-                           weights=args.weights, ticks=args.ticks, duration_s=args.seconds)
+                           weights=args.weights, ticks=args.ticks, duration_s=args.seconds,
+                           save_every_s=args.save_every_s)
     final.pop("weights", None)
     print(json.dumps(final), file=sys.stderr)
+    if final["weights_saved"] is False:
+        return 1  # the learned weights could not be saved (logged)
+    if final["stopped_by"] in ("SIGTERM", "SIGINT"):
+        return 0  # a stop asked for, done in order: axes IDLE, weights saved (a fault is in the final record)
     return 0 if final["phase"] != "fault" else 1
 
 
@@ -199,6 +204,23 @@ def cmd_hil(args: argparse.Namespace) -> int:
     from hil.hilrun import main_hil
 
     return main_hil(args)
+
+
+def cmd_mitm(args: argparse.Namespace) -> int:
+    from hil.faults import FaultSpec
+    from hil.mitm import run_mitm
+
+    run_mitm(args.controller_channel, args.leg_channel, to_leg=FaultSpec.parse(args.to_leg),
+             from_leg=FaultSpec.parse(args.from_leg), seed=args.seed, silence_node=args.silence_node,
+             silence_after_s=args.silence_after_s, poll_s=args.poll_s, duration_s=args.seconds,
+             json_path=args.json, ready_path=args.ready_file)
+    return 0
+
+
+def cmd_faults(args: argparse.Namespace) -> int:
+    from hil.faultmatrix import main_faults
+
+    return main_faults(args)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -211,6 +233,26 @@ def cmd_decode(args: argparse.Namespace) -> int:
     from hil.replay import main_decode
 
     return main_decode(args)
+
+
+def cmd_killsave(args: argparse.Namespace) -> int:
+    import tempfile
+
+    from hil.killsave import kill_during_saves
+
+    if args.kills < 1:
+        raise ValueError(f"--kills must be at least 1, got {args.kills}")
+    if args.folder is None:
+        with tempfile.TemporaryDirectory(prefix="es-killsave-") as folder:
+            result = kill_during_saves(args.kills, folder, args.seed, args.max_delay_s)
+    else:
+        result = kill_during_saves(args.kills, args.folder, args.seed, args.max_delay_s)
+    _write_json(args.json, result)
+    print(f"killsave: {result['kills']} kill -9s ({result['kills_mid_save']} inside a save) over "
+          f"{result['saves_completed']} completed saves in {result['elapsed_s']:.1f} s: {result['corrupt_loads']} corrupt "
+          f"loads, {result['loads_ok_from_file']} from the file, {result['loads_from_prev']} from .prev, "
+          f"{result['zeros']} zeros; {result['tmp_files_left']} temporary files left", file=sys.stderr)
+    return 0 if result["corrupt_loads"] == 0 and result["prev_corrupt"] == 0 and result["child_errors"] == 0 else 1
 
 
 def _add_bus_args(p: argparse.ArgumentParser) -> None:
@@ -310,7 +352,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bus_args(ctl)
     ctl.add_argument("--config", default=None, metavar="FILE", help="controller configuration (JSON; defaults otherwise)")
     ctl.add_argument("--records", default=None, metavar="FILE", help="write the controller's records here (JSON lines)")
-    ctl.add_argument("--weights", default=None, metavar="FILE", help="save the learned weights here at exit (.npz)")
+    ctl.add_argument("--weights", default=None, metavar="FILE",
+                     help="resume from these learned weights (else FILE.prev, else zeros) and save them here "
+                          "while walking and at exit (.npz)")
+    ctl.add_argument("--save-every-s", type=_positive(float), default=10.0,
+                     help="with --weights: save every this many seconds of walking, if they changed (default 10)")
     ctl.add_argument("--ticks", default=None, metavar="FILE", help="write every tick's clock here (for replay)")
     ctl.add_argument("--seconds", type=_positive(float), default=None, help="stop after this long (default: run)")
     ctl.set_defaults(func=cmd_controller)
@@ -330,7 +376,40 @@ def build_parser() -> argparse.ArgumentParser:
                      help="native vcan, User-Mode Linux, or auto: native if vcan can be had, else UML")
     hil.add_argument("--timeout", type=_positive(float), default=None, help="give up after this many seconds")
     hil.add_argument("--quiet", action="store_true", help="less output")
+    from hil.hilfaults import add_hil_fault_args
+
+    add_hil_fault_args(hil)
     hil.set_defaults(func=cmd_hil)
+
+    mitm = sub.add_parser("mitm", help="a man-in-the-middle node: forward between two SocketCAN channels, "
+                                       "injecting faults; silence a node (SIGUSR1 or --silence-after-s)")
+    mitm.add_argument("--controller-channel", default="vcan0", help="the controller's channel (default vcan0)")
+    mitm.add_argument("--leg-channel", default="vcan1", help="the leg's channel (default vcan1)")
+    mitm.add_argument("--to-leg", default="", metavar="SPEC", help="faults on frames to the leg, e.g. drop=0.05")
+    mitm.add_argument("--from-leg", default="", metavar="SPEC", help="faults on frames from the leg")
+    mitm.add_argument("--seed", type=int, default=0, help="seed of the faults (default 0)")
+    mitm.add_argument("--silence-node", type=int, default=None, metavar="ID",
+                      help="the node to silence (its frames to the controller dropped) on SIGUSR1 or at --silence-after-s")
+    mitm.add_argument("--silence-after-s", type=float, default=None, metavar="T", help="silence the node T s after start")
+    mitm.add_argument("--poll-s", type=_positive(float), default=0.0005, help="poll period [s] (default 0.0005)")
+    mitm.add_argument("--seconds", type=_positive(float), default=None, help="stop after this long (default: run)")
+    mitm.add_argument("--json", default=None, metavar="FILE", help="write the counts here at exit")
+    mitm.add_argument("--ready-file", default=None, metavar="FILE", help="create this file once both channels are open")
+    mitm.set_defaults(func=cmd_mitm)
+
+    faults = sub.add_parser("faults", help="the fault-injection matrix: inject every failure mode, report what happened")
+    faults.add_argument("--json", default="-", help="where to write the rows (default: stdout)")
+    faults.add_argument("--out", default="out/faults", help="folder for each case's row, trials and weights (out/faults)")
+    faults.add_argument("--trials", type=int, default=150, help="learning trials of each rate-fault case (150)")
+    faults.add_argument("--seeds", default="0", help="seeds of the whole matrix, e.g. 0 or 0-2 (default 0)")
+    faults.add_argument("--loss-seeds", default="", help="also run 5%% frame loss on these seeds, e.g. 0-9")
+    faults.add_argument("--only", default="", help="only these faults, comma separated (e.g. drop,kill)")
+    faults.add_argument("--kills", type=int, default=1000, help="kill -9s during weight saves (1000; 0: none)")
+    faults.add_argument("--hil", action="store_true", help="also the HIL rows (SocketCAN, User-Mode Linux here)")
+    faults.add_argument("--hil-trials", type=int, default=10, help="trials of the HIL rate-fault row (10)")
+    faults.add_argument("--workers", type=int, default=2, help="processes in parallel (2)")
+    faults.add_argument("--quiet", action="store_true", help="no progress bar")
+    faults.set_defaults(func=cmd_faults)
 
     replay = sub.add_parser("replay", help="feed a recorded bus log to the controller offline; print its decisions")
     replay.add_argument("log", help="bus log (.blf, .log, .asc, ...) recorded by hil")
@@ -349,6 +428,16 @@ def build_parser() -> argparse.ArgumentParser:
     decode.add_argument("--bitrate", type=int, default=1_000_000, help="bus bitrate for --load [bit/s] (1000000)")
     decode.add_argument("--skip-s", type=float, default=0.0, help="leave out the first seconds for --load (0)")
     decode.set_defaults(func=cmd_decode)
+
+    killsave = sub.add_parser("killsave", help="fault injection: kill -9 a process while it saves weights, "
+                                               "then load; count corrupt loads")
+    killsave.add_argument("--kills", type=int, default=1000, help="number of kill -9s (default 1000)")
+    killsave.add_argument("--seed", type=int, default=0, help="seed of the kill delays (default 0)")
+    killsave.add_argument("--max-delay-s", type=_positive(float), default=0.02,
+                          help="kill after a uniform random delay below this [s] (default 0.02)")
+    killsave.add_argument("--folder", default=None, help="where to save (default: a temporary folder, removed)")
+    killsave.add_argument("--json", default="-", help="where to write the counts (default: stdout)")
+    killsave.set_defaults(func=cmd_killsave)
     return parser
 
 

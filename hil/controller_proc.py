@@ -8,8 +8,16 @@ asked for, burst length, swing), ``reflex`` (each reflex, with the weights' L1 n
 and a ``final`` line at exit (loop counters, pacing, frames, weights). Times are the monotonic
 clock of this machine (or VM), the clock the firmware-sim process stamps its ground truth with.
 
-SIGTERM or SIGINT stops it cleanly: every axis is sent Set_Axis_State(IDLE), the records are
-closed and, with ``weights``, the learned weights are saved.
+With ``weights``, learning resumes across restarts: the weights are loaded at start with
+:func:`controller.weights.load_weights_or_fallback` (the file, else its ``.prev`` copy, else zeros,
+each failure logged) into the premotor, saved while walking (:class:`hil.autosave.WeightAutosave`:
+every ``save_every_s`` seconds of walking, when they changed, off the loop's thread) and at exit.
+
+SIGTERM or SIGINT stops it cleanly, in order: every axis is sent Set_Axis_State(IDLE), then, with
+``weights``, the learned weights are saved, then the records are closed. The ``final`` record
+says why it stopped (``stopped_by``: ``"SIGTERM"``, ``"SIGINT"`` or ``"duration"``), where the
+weights came from (``weights_source``: ``"file"``, ``"prev"``, ``"zeros"``, or None without
+``weights``), how many saves succeeded and whether the last one did (``weights_saved``).
 """
 
 from __future__ import annotations
@@ -28,8 +36,11 @@ import can
 import numpy as np
 
 from controller.config import ControllerConfig
+from controller.learner import AdaptivePremotor
 from controller.loop import ControlLoop, StepRecord
 from controller.supervisor import Phase
+from controller.weights import load_weights_or_fallback
+from hil.autosave import AutosaveConfig, WeightAutosave
 from hil.fastbus import lean
 from hil.pacing import Pacer
 from protocol import AxisState
@@ -76,21 +87,41 @@ def weights_of(premotor) -> np.ndarray | None:
 
 def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = ControllerConfig(), *,
                    records: str | Path | None = None, weights: str | Path | None = None,
-                   ticks: str | Path | None = None, duration_s: float | None = None) -> dict[str, Any]:
+                   ticks: str | Path | None = None, duration_s: float | None = None,
+                   save_every_s: float = AutosaveConfig.every_s) -> dict[str, Any]:
     """Run until SIGTERM/SIGINT or ``duration_s``. ``ticks``: write, for every tick, its clock and
     the number of frames it read from the bus (pairs of float64, native byte order; the count is
-    -1 on a bus that does not count), so ``replay`` can tick as the live loop did."""
-    stop = {"flag": False}
+    -1 on a bus that does not count), so ``replay`` can tick as the live loop did. ``weights``:
+    resume from and save to this file (see the module docstring); ``save_every_s``: seconds of
+    walking between periodic saves."""
+    stop: dict[str, Any] = {"flag": False, "by": "duration"}
 
     def on_signal(signum, frame):  # noqa: ARG001
         stop["flag"] = True
+        stop["by"] = signal.Signals(signum).name
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    autosave_config = AutosaveConfig(every_s=save_every_s)
+    premotor = None
+    source = None
+    if weights is not None:
+        initial, source = load_weights_or_fallback(weights, config.encoder.n_cells, config.encoder.cell_width_m)
+        where = {"file": str(weights), "prev": f"{weights}.prev", "zeros": "zeros"}[source]
+        log.info("weights: resuming from %s (failures were logged by controller.weights)", where)
+        premotor = AdaptivePremotor(config.encoder.n_cells, config.cpg.burst_s, config.learner, weights=initial)
 
-    raw_bus = can.Bus(**bus_kw)
+    previous_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        raw_bus = can.Bus(**bus_kw)
+    except BaseException:
+        for s, handler in previous_handlers.items():
+            signal.signal(s, handler)
+        raise
     bus = lean(raw_bus, timestamps=False)
-    loop = ControlLoop(config, bus)
+    loop = ControlLoop(config, bus, premotor)
+    # bus errors and bus-off: BusIO closes the bus and opens a new one with backoff
+    loop.io.reopen = lambda: lean(can.Bus(**bus_kw), timestamps=False)
+    autosave = None if weights is None else WeightAutosave(weights, config.encoder.cell_width_m, autosave_config,
+                                                           saved=initial if source == "file" else None)
     rec = Records(records)
     pacer = Pacer(config.period_s, catch_up=False, late_factor=config.late_factor)
     phase = None
@@ -99,7 +130,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
     rec.write({"kind": "clock", "realtime_minus_monotonic_s": time.time() - time.monotonic()})
     tick_file = open(ticks, "wb") if ticks else None
     tick_buf = array("d")
-    received = getattr(bus, "received", 0)
+    received = loop.io.received  # frames read by the loop, across bus reopens
     t0 = pacer.start()
     t_end = math.inf if duration_s is None else t0 + duration_s
     log.info("controller on %s at %.0f Hz", bus_kw, config.rate_hz)
@@ -109,10 +140,12 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             if now >= t_end:
                 break
             loop.tick(now)
+            if autosave is not None:
+                autosave.tick(now, loop.phase is Phase.WALK, weights_of(loop.premotor))
             if tick_file is not None:
-                got = getattr(bus, "received", None)
+                got = loop.io.received
                 tick_buf.append(now)
-                tick_buf.append(-1.0 if got is None else float(got - received))
+                tick_buf.append(float(got - received))
                 received = got
                 if len(tick_buf) >= 512:
                     tick_buf.tofile(tick_file)
@@ -141,7 +174,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
         for _ in range(3):
             for a in loop.axes:
                 try:
-                    bus.send(a.state_frame(AxisState.IDLE))
+                    loop.io.bus.send(a.state_frame(AxisState.IDLE))  # the bus in use (maybe reopened)
                 except can.CanError:
                     pass
             time.sleep(0.01)
@@ -151,6 +184,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
         for s in stats.steps[rec.steps_written:]:
             rec.write(step_dict(s))
         w = weights_of(loop.premotor)
+        saved = None if autosave is None else autosave.close(w)
         final = {
             "kind": "final",
             "phase": loop.phase.value,
@@ -166,15 +200,20 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             "frames_tx": dict(sorted(loop.io.tx.items())),
             "frames_rx": dict(sorted(loop.io.rx.items())),
             "frames_dropped": dict(sorted(loop.io.dropped.items())),
+            "bus_events": dict(sorted(loop.io.bus_events.items())),
             "weights": None if w is None else w.tolist(),
+            "stopped_by": stop["by"],
+            "weights_source": source,
+            "weights_saves": None if autosave is None else autosave.saves,
+            "weights_saved": saved,
         }
         rec.write(final)
         rec.close()
-        if weights is not None and w is not None:
-            from controller.weights import save_weights
-
-            save_weights(weights, w, config.encoder.cell_width_m)
+        if loop.io.bus is not bus:
+            loop.io.bus.shutdown()
         raw_bus.shutdown()
+        for s, handler in previous_handlers.items():
+            signal.signal(s, handler)
     return final
 
 

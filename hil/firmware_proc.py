@@ -33,7 +33,7 @@ from firmware_sim.plant import Obstacle, RigConfig
 from hil.fastbus import lean
 from hil.groundtruth import FootfallTracker
 from hil.pacing import Pacer
-from protocol import AxisError
+from protocol import AxisError, AxisState
 
 log = logging.getLogger(__name__)
 
@@ -180,7 +180,25 @@ class Scenario:
         }
 
 
-def axes_status(leg: SimulatedLeg) -> dict[str, Any]:
+class IdleClock:
+    """When each axis last entered IDLE, on the monotonic clock [s] (None while not IDLE), checked
+    at every wake-up of the plant (1 ms natively, 2 ms inside User-Mode Linux)."""
+
+    def __init__(self, leg: SimulatedLeg) -> None:
+        self.axes = list(leg.axes.items())
+        self.idle_since: dict[str, float | None] = {n: None for n, _ in self.axes}
+        self.entries: dict[str, int] = {n: 0 for n, _ in self.axes}
+
+    def update(self, now_mono: float) -> None:
+        since = self.idle_since
+        for name, axis in self.axes:
+            idle = axis.state is AxisState.IDLE
+            if idle != (since[name] is not None):
+                since[name] = now_mono if idle else None
+                self.entries[name] += idle
+
+
+def axes_status(leg: SimulatedLeg, idle: IdleClock | None = None) -> dict[str, Any]:
     out = {}
     for name, axis in leg.axes.items():
         errors = int(axis.errors)
@@ -189,6 +207,10 @@ def axes_status(leg: SimulatedLeg) -> dict[str, Any]:
             "errors": errors,
             "watchdog_expired": bool(errors & AxisError.WATCHDOG_TIMER_EXPIRED),
             "rx_set_input_pos": int(axis.stats["rx"].get("Set_Input_Pos", 0)),
+            "targets_outside_limits": int(axis.stats.get("targets_outside_limits", 0)),
+            "pos_limits_rev": [axis.config.pos_min_rev, axis.config.pos_max_rev],
+            "idle_since_mono": None if idle is None else idle.idle_since[name],
+            "idle_entries": None if idle is None else idle.entries[name],
         }
     return out
 
@@ -227,6 +249,7 @@ def run_firmware(bus_kw: dict[str, Any], *, seed: int = 0, gui: bool = False, sc
     pacer = Pacer(leg.dt_s * k, catch_up=True)
     watchdog_trips = 0
     was_expired = {n: False for n in leg.axes}
+    idle = IdleClock(leg)
     poll_every = max(1, int(round(0.005 / (leg.dt_s * k))))  # side channel every 5 ms
     steps = 0
     bye = False
@@ -242,6 +265,7 @@ def run_firmware(bus_kw: dict[str, Any], *, seed: int = 0, gui: bool = False, sc
                 done = scen.update(now)
                 if done is not None and chan is not None:
                     chan.send(done)
+            idle.update(now)
             steps += 1
             if steps % poll_every:
                 continue
@@ -256,14 +280,14 @@ def run_firmware(bus_kw: dict[str, Any], *, seed: int = 0, gui: bool = False, sc
             for req in chan.poll():
                 op = req.get("op")
                 if op == "status":
-                    chan.send(status(leg, pacer, watchdog_trips, now))
+                    chan.send(status(leg, pacer, watchdog_trips, now, idle))
                 elif op == "trial":
                     try:
                         scen.start(req)
                     except (RuntimeError, KeyError, ValueError) as exc:
                         chan.send({"op": "error", "error": str(exc)})
                 elif op == "quit":
-                    chan.send({**status(leg, pacer, watchdog_trips, now), "op": "bye"})
+                    chan.send({**status(leg, pacer, watchdog_trips, now, idle), "op": "bye"})
                     bye = True
                     stop["flag"] = True
                 elif op == "disconnected":
@@ -271,7 +295,7 @@ def run_firmware(bus_kw: dict[str, Any], *, seed: int = 0, gui: bool = False, sc
                 else:
                     chan.send({"op": "error", "error": f"unknown request {req!r}"})
     finally:
-        final = status(leg, pacer, watchdog_trips, time.monotonic())
+        final = status(leg, pacer, watchdog_trips, time.monotonic(), idle)
         if chan is not None:
             if not bye:
                 chan.send({**final, "op": "bye"})
@@ -281,12 +305,13 @@ def run_firmware(bus_kw: dict[str, Any], *, seed: int = 0, gui: bool = False, sc
     return final
 
 
-def status(leg: SimulatedLeg, pacer: Pacer, watchdog_trips: int, now: float) -> dict[str, Any]:
+def status(leg: SimulatedLeg, pacer: Pacer, watchdog_trips: int, now: float,
+           idle: IdleClock | None = None) -> dict[str, Any]:
     return {
         "op": "status",
         "t_s": leg.t_s,
         "mono": now,
-        "axes": axes_status(leg),
+        "axes": axes_status(leg, idle),
         "watchdog_trips": watchdog_trips,
         "host": dict(leg.host.stats),
         "pacing": pacer.summary(),

@@ -31,12 +31,14 @@ import os
 import shutil
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 import uuid
+from array import array
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -48,14 +50,16 @@ from hil.controller_proc import phases_seen, read_records
 
 if TYPE_CHECKING:
     from controller.config import ControllerConfig
+    from hil.hilfaults import FaultPlan, FaultSession
     from hil.learn import LearnConfig
 
 CONTROLLER_CMDS = frozenset({2, 7, 11, 12, 13, 14, 15, 22, 24, 25, 26, 27})  # DBC sender: Controller
 SET_INPUT_POS, GET_ENCODER_ESTIMATES = 12, 9
+_F32 = struct.Struct("<f")  # Set_Input_Pos's Input_Pos [rev]
 SENSOR_BOARD_NODE = 16
 
 
-UML_HEARTBEAT_TIMEOUT_S = 1.0  # the controller's node-silence timeout inside UML [s] (0.35 natively)
+UML_SILENCE_PERIODS = 10.0  # the controller's node-silence timeout inside UML [heartbeat periods] (3.5 natively)
 
 
 def _in_uml() -> bool:
@@ -72,9 +76,10 @@ class HilError(RuntimeError):
 class BusRecorder(threading.Thread):
     """Records every frame on the channel with python-can's writer for ``path``'s suffix, counts
     frames each way and measures command-to-feedback latency. Drains a non-blocking socket every
-    10 ms (one system call per frame)."""
+    10 ms (one system call per frame). With ``audit_commands``, it also keeps every Set_Input_Pos
+    target [rev] per node in ``commanded`` (to count targets outside the joint limits later)."""
 
-    def __init__(self, channel: str, path: Path) -> None:
+    def __init__(self, channel: str, path: Path, audit_commands: bool = False) -> None:
         super().__init__(name="bus-recorder", daemon=True)
         from hil.fastbus import lean
 
@@ -97,6 +102,7 @@ class BusRecorder(threading.Thread):
         self.by_id: dict[int, int] = {}
         self._pending: dict[int, float] = {}
         self.latency_s: list[float] = []
+        self.commanded: dict[int, array] | None = {} if audit_commands else None
         self.error: str | None = None
 
     def _take(self, msg: can.Message) -> None:
@@ -107,8 +113,11 @@ class BusRecorder(threading.Thread):
         node, cmd = arb >> 5, arb & 0x1F
         if node != SENSOR_BOARD_NODE and (cmd in CONTROLLER_CMDS or msg.is_remote_frame):
             self.to_leg += 1
-            if cmd == SET_INPUT_POS and node not in self._pending:
-                self._pending[node] = msg.timestamp
+            if cmd == SET_INPUT_POS:
+                if node not in self._pending:
+                    self._pending[node] = msg.timestamp
+                if self.commanded is not None and len(msg.data) >= 4:
+                    self.commanded.setdefault(node, array("f")).append(_F32.unpack_from(msg.data)[0])
         else:
             self.from_leg += 1
             if cmd == GET_ENCODER_ESTIMATES and node != SENSOR_BOARD_NODE:
@@ -193,9 +202,15 @@ class ScenarioClient:
         line, self._buf = self._buf.split(b"\n", 1)
         return json.loads(line)
 
-    def request(self, msg: dict[str, Any], timeout_s: float = 30.0) -> dict[str, Any]:
+    def request(self, msg: dict[str, Any], timeout_s: float = 30.0, expect: str | None = None) -> dict[str, Any]:
+        """Send ``msg``, return the reply; with ``expect``, the first reply whose op it is (a
+        trial's ``trial_done`` sent meanwhile is skipped)."""
         self.send(msg)
-        return self.receive(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            reply = self.receive(max(1.0, deadline - time.monotonic()))
+            if expect is None or reply.get("op") == expect:
+                return reply
 
     def close(self) -> None:
         self.sock.close()
@@ -218,8 +233,7 @@ def stop_session(controller: subprocess.Popen | None, client: "ScenarioClient | 
         rc_controller = _stop(controller, 30.0)
     if client is not None:
         try:
-            client.send({"op": "quit"})
-            bye = client.receive(30.0)
+            bye = client.request({"op": "quit"}, 30.0, expect="bye")
         except (HilError, OSError, ValueError):
             pass
         client.close()
@@ -273,7 +287,7 @@ def assemble_trials(truths: list[dict[str, Any]], records: dict[str, list[dict[s
 
 def session_controller_config(config: LearnConfig) -> ControllerConfig:
     """The controller configuration of a session on this platform: the learning run's, with the
-    node-silence timeout of :data:`UML_HEARTBEAT_TIMEOUT_S` inside User-Mode Linux.
+    node-silence timeout of :data:`UML_SILENCE_PERIODS` heartbeat periods inside User-Mode Linux.
 
     User-Mode Linux is one virtual CPU for both processes, the recorder and the harness, and it
     runs near saturation: a node can look silent for a few hundred ms while the plant catches up
@@ -282,7 +296,8 @@ def session_controller_config(config: LearnConfig) -> ControllerConfig:
     """
     ctl_config = config.lockstep().controller
     if _in_uml():
-        ctl_config = dataclasses.replace(ctl_config, heartbeat_timeout_s=UML_HEARTBEAT_TIMEOUT_S)
+        ctl_config = dataclasses.replace(ctl_config, silence_periods=UML_SILENCE_PERIODS,
+                                         stale_heartbeat_periods=max(UML_SILENCE_PERIODS, ctl_config.stale_heartbeat_periods))
     return ctl_config
 
 
@@ -300,7 +315,11 @@ def session_envs() -> tuple[dict[str, str], dict[str, str]]:
 
 def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan0", obstacle_height_m: float = 0.08,
                 range_noise_m: float = 0.02, learning: bool = True, log_format: str = "blf",
-                timeout_s: float | None = None, quiet: bool = False, where: str = "native") -> dict[str, Any]:
+                timeout_s: float | None = None, quiet: bool = False, where: str = "native",
+                faults: FaultPlan | None = None) -> dict[str, Any]:
+    """One session (see the module docstring). ``faults``: the controller stays on ``channel``,
+    the firmware-sim process goes to ``faults.leg_channel``, with the mitm node between them and
+    the plan's event (:mod:`hil.hilfaults`); ``metrics.json`` then has a ``fault`` section."""
     from hil.configfile import controller_config_to_dict
     from hil.learn import LearnConfig, summarize
 
@@ -317,6 +336,8 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     (work / "controller.json").write_text(json.dumps(controller_config_to_dict(ctl_config), indent=1) + "\n")
     records_path = work / "controller.jsonl"
     records_path.unlink(missing_ok=True)
+    for stale in ("weights.npz", "weights.npz.prev"):  # the daemon resumes from these: a session starts fresh
+        (work / stale).unlink(missing_ok=True)
     budget = timeout_s if timeout_s is not None else 180.0 + 40.0 * trials
     deadline = wall0 + budget
 
@@ -327,16 +348,29 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     log_path = work / ("bus.blf" if log_format == "blf" else "bus.log")
     for stale in ("bus.blf", "bus.log"):
         (out / stale).unlink(missing_ok=True)
-    recorder = BusRecorder(channel, log_path)
+    recorder = BusRecorder(channel, log_path, audit_commands=faults is not None)
     recorder.start()
     py = [sys.executable, "-m", "hil.cli"]
     bus_args = ["--interface", "socketcan", "--channel", channel]
     addr = f"@elegant-stepping-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     env, fw_env = session_envs()
+    fs: FaultSession | None = None
+    if faults is not None:
+        from hil.hilfaults import FaultSession
+
+        (work / "mitm.json").unlink(missing_ok=True)
+        fs = FaultSession(faults, channel, work, ctl_config, env, say)
+        try:
+            fs.start()
+        except BaseException:
+            fs.stop()
+            recorder.stop()
+            raise
+    fw_bus_args = bus_args if faults is None else ["--interface", "socketcan", "--channel", faults.leg_channel]
     fw_log = open(work / "firmware.log", "w")
     ctl_log = open(work / "controller.log", "w")
     firmware = subprocess.Popen(
-        [*py, "firmware-sim", *bus_args, "--seed", str(seed), "--scenario", addr,
+        [*py, "firmware-sim", *fw_bus_args, "--seed", str(seed), "--scenario", addr,
          "--range-noise-m", str(config.range_noise_m), "--range-dropout-prob", str(config.range_dropout_prob)],
         stdout=fw_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=fw_env)
     controller: subprocess.Popen | None = None
@@ -349,7 +383,8 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     t_walk = None
 
     def alive() -> bool:
-        return firmware.poll() is None and (controller is None or controller.poll() is None)
+        return (firmware.poll() is None and (controller is None or controller.poll() is None)
+                and (fs is None or fs.alive()))
 
     try:
         client = ScenarioClient(addr, max(10.0, deadline - time.monotonic()), alive)
@@ -382,6 +417,8 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
             start = float(rng.uniform(config.start_min_m, config.start_max_m))
             client.send({"op": "trial", "index": i, "start_m": start, "height_m": config.obstacle_height_m,
                          "depth_m": config.obstacle_depth_m, "past_m": config.past_obstacle_m})
+            if fs is not None and fs.at_trial(i, client, controller, firmware, wall0 + t_walk):
+                break  # the event ended the session
             reply = client.receive(max(5.0, min(90.0, deadline - time.monotonic())), alive)
             if reply.get("op") != "trial_done":
                 raise HilError(f"unexpected reply to trial {i}: {reply}")
@@ -392,12 +429,15 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
                 f"({successes}/{i + 1}), {reply['sim_s']:.1f} s")
             if phases and phases[-1] == "fault":
                 raise HilError(f"the controller stopped safely during trial {i}; see {out / records_path.name}")
-        status_running = client.request({"op": "status"})
+        status_running = fs.status_before if fs is not None and fs.status_before else \
+            client.request({"op": "status"}, expect="status")
     except (HilError, OSError, ValueError) as exc:
         error = str(exc)
         say(f"error: {error}")
     finally:
         rc_controller, rc_firmware, bye = stop_session(controller, client, firmware, rc_controller, bye)
+        if fs is not None:
+            fs.stop()
         recorder.stop()
         fw_log.close()
         ctl_log.close()
@@ -459,6 +499,10 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
             "error": error,
         },
     }
+    if fs is not None:
+        metrics["hil"]["leg_channel"] = faults.leg_channel
+        metrics["fault"] = fs.section(where=where, bye=bye, final=final, rc_controller=rc_controller,
+                                      recorder=recorder, out=out)
     tmp = out / "metrics.json.tmp"
     tmp.write_text(json.dumps(metrics, indent=1) + "\n")
     tmp.replace(out / "metrics.json")
@@ -492,14 +536,31 @@ def _inner_argv(args, out: Path) -> list[str]:
         argv.append("--quiet")
     if args.timeout is not None:
         argv += ["--timeout", str(args.timeout)]
-    return argv
+    plan = _fault_plan(args)
+    return argv + ([] if plan is None else plan.argv())
+
+
+def _fault_plan(args) -> FaultPlan | None:
+    """The session's fault plan from the ``hil`` options (None without any; also None for an
+    argparse namespace from before the fault options existed)."""
+    if not hasattr(args, "faults_to_leg"):
+        return None
+    from hil.hilfaults import FaultPlan
+
+    return FaultPlan.from_args(args)
 
 
 def main_hil(args) -> int:
-    from hil.uml import VcanUnavailable, in_uml, run_in_uml, where
+    from hil.uml import VcanUnavailable, in_uml, instruction, native_vcan, run_in_uml, where
 
+    plan = _fault_plan(args)
     try:
         place = where(args.where, args.channel)
+        if plan is not None and place == "native" and not native_vcan(plan.leg_channel):
+            if args.where != "auto" or in_uml():
+                raise VcanUnavailable(f"the fault options need a second channel {plan.leg_channel!r}: "
+                                      f"{instruction(plan.leg_channel, uml_considered=False)}")
+            place = where("uml", args.channel)
     except VcanUnavailable as exc:
         print(f"elegant-stepping hil: {exc}", file=sys.stderr)
         return 3
@@ -523,8 +584,14 @@ def main_hil(args) -> int:
     m = run_session(trials=args.trials, seed=args.seed, out=out, channel=args.channel,
                     obstacle_height_m=args.obstacle_height_m, range_noise_m=args.range_noise_m,
                     learning=not args.no_learning, log_format=args.log_format, timeout_s=args.timeout,
-                    quiet=args.quiet, where="uml" if in_uml() else "native")
-    problems = session_ok(m, args.trials)
+                    quiet=args.quiet, where="uml" if in_uml() else "native", faults=plan)
+    if plan is not None:
+        from hil.hilfaults import fault_problems, fault_summary
+
+        problems = fault_problems(m, args.trials)
+        print(fault_summary(m), file=sys.stderr)
+    else:
+        problems = session_ok(m, args.trials)
     s, t = m["summary"], m["timing"]
     jit = t["period_jitter_us"] or {}
     c2f = t["command_to_feedback_us"]

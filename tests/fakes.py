@@ -1,15 +1,55 @@
-"""Small stand-ins for the PyBullet plant, used by the firmware simulation's tests.
+"""Small stand-ins for the PyBullet plant and for a CAN bus, used by the tests.
 
 :class:`FakeJointPlant` is a set of independent 1-DOF rotary inertias with viscous damping and
 an optional constant load torque, integrated with semi-implicit (symplectic) Euler: velocity
 first, then position with the new velocity. :class:`FakeSensorSource` returns whatever range,
-range profile and contacts a test sets.
+range profile and contacts a test sets. :class:`FakeBus` is an in-memory python-can bus: frames
+pushed into it are received in order, frames sent are kept, and it raises whatever error a test
+sets, on receive or on send.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
+from typing import Iterable
+
+import can
+
+
+class FakeBus(can.BusABC):
+    """An in-memory bus. ``incoming``: frames :meth:`recv` hands out, oldest first; ``sent``:
+    frames given to :meth:`send`. ``recv_error`` / ``send_error``: an exception raised by every
+    ``recv`` / ``send`` while set. ``closed``: :meth:`shutdown` was called."""
+
+    def __init__(self, frames: Iterable[can.Message] = ()) -> None:
+        super().__init__(channel="fake")
+        self.incoming: deque[can.Message] = deque(frames)
+        self.sent: list[can.Message] = []
+        self.recv_error: BaseException | None = None
+        self.send_error: BaseException | None = None
+        self.closed = False
+        self._is_shutdown = True  # nothing to release: no "not properly shut down" warning
+
+    def push(self, *frames: can.Message) -> None:
+        self.incoming.extend(frames)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:  # noqa: ARG002 - never blocks
+        if self.recv_error is not None:
+            raise self.recv_error
+        return self.incoming.popleft() if self.incoming else None
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:  # noqa: ARG002
+        if self.send_error is not None:
+            raise self.send_error
+        self.sent.append(msg)
+
+    def _recv_internal(self, timeout: float | None):  # noqa: ARG002 - recv is overridden
+        return None, False
+
+    def shutdown(self) -> None:
+        self.closed = True
 
 
 @dataclass

@@ -679,3 +679,192 @@ def test_integrator_does_not_wind_up_while_torque_saturates():
     run(axis, plant, 0.0, 1.0)
     assert axis.torque_setpoint_nm == pytest.approx(TAU_MAX)
     assert abs(axis.vel_integrator_nm) < 0.05
+
+
+# --------------------------------------------------------------------------- safety latches (issue 6)
+def test_estop_stays_latched_through_idle_calibration_and_time_until_clear_errors():
+    axis, plant, _ = make(watchdog_timeout_s=0.0)
+    arm(axis)
+    axis.handle(frame("Estop"), 0.0)
+    assert axis.state is AxisState.IDLE and axis.stats["estops"] == 1
+    t = 0.0
+    for request in (AxisState.IDLE, AxisState.FULL_CALIBRATION_SEQUENCE, AxisState.CLOSED_LOOP_CONTROL):
+        axis.handle(frame("Set_Axis_State", request), t)
+        t = run(axis, plant, t, 0.5)  # time passing clears nothing
+        axis.handle(frame("Set_Axis_State", AxisState.CLOSED_LOOP_CONTROL), t)
+        assert axis.state is AxisState.IDLE
+        assert axis.errors & AxisError.ESTOP_REQUESTED
+        assert ask(axis, "Heartbeat", t)["Procedure_Result"] == ProcedureResult.DISARMED
+    assert plant.torque("knee") == 0.0
+    axis.handle(frame("Estop"), t)  # a second Estop while latched: counted, still latched
+    assert axis.stats["estops"] == 2
+    axis.handle(frame("Clear_Errors", 0), t)
+    axis.handle(frame("Set_Axis_State", AxisState.CLOSED_LOOP_CONTROL), t)
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL and axis.errors == AxisError.NONE
+
+
+def test_estop_while_idle_latches_and_reboot_clears_it():
+    axis, _, _ = make()
+    axis.handle(frame("Estop"), 0.0)
+    assert axis.state is AxisState.IDLE and axis.errors & AxisError.ESTOP_REQUESTED
+    axis.handle(frame("Reboot", 0), 0.0)  # power-on state: no error
+    assert axis.errors == AxisError.NONE
+    arm(axis)
+
+
+def test_watchdog_trip_is_latched_until_clear_errors_then_rearms():
+    axis, plant, _ = make(watchdog_timeout_s=0.1)
+    arm(axis, 0.0)
+    t = run(axis, plant, 0.0, 0.2)
+    assert axis.state is AxisState.IDLE and axis.stats["watchdog_trips"] == 1
+    t = run(axis, plant, t, 0.5)  # stays tripped, counted once
+    assert axis.stats["watchdog_trips"] == 1
+    assert ask(axis, "Get_Error") == {"Active_Errors": AxisError.WATCHDOG_TIMER_EXPIRED,
+                                      "Disarm_Reason": AxisError.WATCHDOG_TIMER_EXPIRED}
+    axis.handle(frame("Set_Input_Pos", 0.0, 0.0, 0.0), t)  # a command feeds, but does not re-arm
+    assert axis.state is AxisState.IDLE
+    axis.handle(frame("Clear_Errors", 0), t)
+    assert ask(axis, "Heartbeat", t)["Axis_Error"] == 0
+    axis.handle(frame("Set_Axis_State", AxisState.CLOSED_LOOP_CONTROL), t)
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL
+
+
+def test_watchdog_idle_axis_accumulates_no_error_and_arming_feeds_it():
+    axis, plant, _ = make(watchdog_timeout_s=0.1)
+    t = run(axis, plant, 0.0, 2.0)  # idle for 2 s without a single frame
+    assert axis.errors == AxisError.NONE
+    arm(axis, t)
+    t = run(axis, plant, t, 0.09)
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL  # entry fed the watchdog
+
+
+def test_other_nodes_frames_do_not_feed_the_watchdog():
+    axis, plant, _ = make(watchdog_timeout_s=0.1)
+    arm(axis, 0.0)
+    other = lambda t: axis.handle(frame("Set_Input_Pos", 0.0, 0.0, 0.0, node=NODE + 1), t)  # noqa: E731
+    run(axis, plant, 0.0, 0.3, every=10, action=other)
+    assert axis.state is AxisState.IDLE and axis.errors & AxisError.WATCHDOG_TIMER_EXPIRED
+
+
+# --------------------------------------------------------------------------- position limits
+LIMITS = dict(pos_min_rev=-1.0, pos_max_rev=2.0, watchdog_timeout_s=0.0)
+
+
+def _put_motor_at(plant, tr, pos_rev):
+    plant.set_state("knee", tr.motor_rev_to_joint_rad(pos_rev))
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+@pytest.mark.parametrize("side", ["min", "max"])
+def test_joint_pushed_past_its_limit_disarms_with_position_limit_violation(direction, side):
+    tr = Transmission(gear_ratio=6.0, direction=direction, zero_offset_rev=0.1)
+    axis, plant, _ = make(transmission=tr, **LIMITS)
+    margin = axis.config.pos_limit_margin_rev
+    edge, sign = (-1.0, -1.0) if side == "min" else (2.0, 1.0)
+    _put_motor_at(plant, tr, edge + sign * 0.9 * margin)  # past the limit, within the margin
+    arm(axis)
+    axis.update(DT, DT)
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL and axis.stats["position_limit_trips"] == 0
+    _put_motor_at(plant, tr, edge + sign * 1.5 * margin)  # pushed past the margin
+    plant.set_joint_torque("knee", 1.0)
+    axis.update(2 * DT, DT)
+    assert axis.state is AxisState.IDLE
+    assert axis.errors == AxisError.POSITION_LIMIT_VIOLATION
+    assert axis.disarm_reason == AxisError.POSITION_LIMIT_VIOLATION
+    assert axis.procedure_result == ProcedureResult.DISARMED
+    assert plant.torque("knee") == 0.0 and axis.torque_setpoint_nm == 0.0
+    assert axis.stats["position_limit_trips"] == 1
+    hb = ask(axis, "Heartbeat")
+    assert hb["Axis_Error"] & AxisError.POSITION_LIMIT_VIOLATION and hb["Axis_State"] == AxisState.IDLE
+    # Latched: refused until Clear_Errors, and tripped again at once while still out there.
+    axis.handle(frame("Set_Axis_State", AxisState.CLOSED_LOOP_CONTROL), 0.01)
+    assert axis.state is AxisState.IDLE
+    axis.handle(frame("Clear_Errors", 0), 0.01)
+    arm(axis, 0.01)
+    axis.update(0.011, DT)
+    assert axis.state is AxisState.IDLE and axis.stats["position_limit_trips"] == 2
+    _put_motor_at(plant, tr, 0.5)  # back inside: arms and stays armed
+    axis.handle(frame("Clear_Errors", 0), 0.02)
+    arm(axis, 0.02)
+    axis.update(0.021, DT)
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL and axis.errors == AxisError.NONE
+
+
+def test_position_limit_checked_only_in_closed_loop_and_only_with_limits():
+    tr = Transmission()
+    axis, plant, _ = make(transmission=tr, **LIMITS)
+    _put_motor_at(plant, tr, 5.0)
+    axis.update(DT, DT)  # idle: nothing to trip
+    assert axis.errors == AxisError.NONE
+    free, free_plant, _ = make(watchdog_timeout_s=0.0)  # no limits configured
+    _put_motor_at(free_plant, tr, 1e6)
+    arm(free)
+    free.update(DT, DT)
+    assert free.state is AxisState.CLOSED_LOOP_CONTROL
+
+
+def test_position_limit_margin_is_configurable_and_validated():
+    tr = Transmission()
+    axis, plant, _ = make(transmission=tr, pos_limit_margin_rev=0.5, **LIMITS)
+    _put_motor_at(plant, tr, 2.4)
+    arm(axis)
+    axis.update(DT, DT)
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL
+    _put_motor_at(plant, tr, 2.6)
+    axis.update(2 * DT, DT)
+    assert axis.errors == AxisError.POSITION_LIMIT_VIOLATION
+    for bad in (-0.01, math.nan, math.inf):
+        with pytest.raises(ValueError):
+            DriverConfig(node_id=1, pos_limit_margin_rev=bad)
+
+
+def test_set_absolute_position_that_moves_the_estimate_past_a_limit_trips():
+    axis, plant, _ = make(**LIMITS)
+    arm(axis)
+    axis.update(DT, DT)
+    axis.handle(frame("Set_Absolute_Position", 3.0), DT)  # the estimate jumps past pos_max_rev
+    axis.update(2 * DT, DT)
+    assert axis.errors == AxisError.POSITION_LIMIT_VIOLATION and axis.state is AxisState.IDLE
+
+
+@pytest.mark.parametrize("limits", [LIMITS, dict(watchdog_timeout_s=0.0)])
+def test_nan_position_estimate_disarms_with_missing_estimate(limits):
+    axis, plant, _ = make(**limits)
+    arm(axis)
+    plant.set_state("knee", math.nan)
+    axis.update(DT, DT)
+    assert axis.state is AxisState.IDLE and axis.errors == AxisError.MISSING_ESTIMATE
+    assert axis.stats["missing_estimate_trips"] == 1 and axis.stats["position_limit_trips"] == 0
+
+
+# --------------------------------------------------------------------------- torque / current limits
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(
+    current_limit_a=st.one_of(st.just(0.0), st.floats(0.0, 100.0), st.just(1e9)),
+    mode=st.sampled_from([ControlMode.TORQUE_CONTROL, ControlMode.VELOCITY_CONTROL, ControlMode.POSITION_CONTROL]),
+    inputs=st.lists(
+        st.tuples(st.floats(-1e4, 1e4), st.floats(-50.0, 50.0), st.floats(-100.0, 100.0)), min_size=1, max_size=20
+    ),
+    q0=st.floats(-3.0, 3.0),
+    qd0=st.floats(-20.0, 20.0),
+)
+def test_applied_torque_never_exceeds_kt_times_the_lower_current_limit(current_limit_a, mode, inputs, q0, qd0):
+    axis, plant, motor = make(watchdog_timeout_s=0.0)
+    plant.set_state("knee", q0, qd0)
+    arm(axis)
+    axis.handle(frame("Set_Limits", 20.0, current_limit_a), 0.0)
+    axis.handle(frame("Set_Controller_Mode", mode, InputMode.PASSTHROUGH), 0.0)
+    # Set_Limits' float32 current limit, as the axis decoded it
+    limit_nm = KT * min(axis.current_limit_a, MotorParams().current_limit_a)
+    assert axis.torque_limit_nm == pytest.approx(limit_nm)
+    t = 0.0
+    for pos, vel, torque in inputs:
+        axis.handle(frame("Set_Input_Pos", pos, max(-32.0, min(32.0, vel)), max(-32.0, min(32.0, torque))), t)
+        axis.handle(frame("Set_Input_Vel", vel, torque), t)
+        axis.handle(frame("Set_Input_Torque", torque), t)
+        t += DT
+        axis.update(t, DT)
+        assert abs(axis.torque_setpoint_nm) <= limit_nm * (1 + 1e-12)
+        assert abs(motor.torque_estimate_nm) <= limit_nm * (1 + 1e-12)
+        assert abs(plant.torque("knee")) <= 6.0 * limit_nm * (1 + 1e-12)
+        plant.step(DT)
