@@ -9,8 +9,10 @@ A row is one fault case on one seed (:class:`FaultCase`). Two kinds of case:
   as the daemon does. ``success_last_50`` is the learning outcome under that fault; if the
   controller stopped safely, the run ends there, with ``stopped_at_trial`` and the cause, and
   ``success_last_50`` is None.
-- **Events** (``silence`` of one node, ``kill`` of the controller, ``cut`` of its cable): the leg
-  walks into a trial, the event happens 1.5 s in, and the leg runs on until every axis is IDLE.
+- **Events** (``silence`` of one node, ``kill`` of the controller, ``cut`` of its cable,
+  ``bus_off`` of its CAN interface for ``outage_s``): the leg walks into a trial, the event
+  happens 1.5 s in, and the leg runs on until every axis is IDLE (or for 3 s: an outage short
+  enough to ride through leaves ``safe_state_ms`` None and ``still_walking`` True).
   ``safe_state_ms`` is the time from the event to every simulated axis in IDLE (ground truth);
   ``heartbeat_idle_ms`` when every axis's Heartbeat on the bus first reported IDLE (what a CAN
   analyser would see). After a kill, the weights file must load to the last save.
@@ -43,7 +45,7 @@ from protocol import AxisState, BusContract
 
 log = logging.getLogger(__name__)
 
-EVENTS = ("silence", "kill", "cut")
+EVENTS = ("silence", "kill", "cut", "bus_off")
 DIRECTIONS = ("both", "to_leg", "from_leg")
 NODE_IDS = {"hip": 0, "knee": 1, "sensor_board": 16}
 EVENT_AFTER_S = 1.5  # an event happens this long into its trial [s]
@@ -61,6 +63,7 @@ class FaultCase:
             sends) or ``from_leg`` (what it receives); default ``both``.
         node: the node silenced (``hip``, ``knee``, ``sensor_board``; ``silence`` only).
         seed: the run's seed (start distances, sensor noise, and the faults' own generator).
+        outage_s: how long the controller's bus is off [s] (``bus_off`` only).
     """
 
     fault: str
@@ -68,6 +71,7 @@ class FaultCase:
     direction: str = "both"
     node: str | None = None
     seed: int = 0
+    outage_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.fault not in ("none", *FAULT_KINDS, *EVENTS):
@@ -78,6 +82,9 @@ class FaultCase:
             raise ValueError(f"direction must be one of {DIRECTIONS}, got {self.direction!r}")
         if (self.fault == "silence") != (self.node is not None) or (self.node and self.node not in NODE_IDS):
             raise ValueError(f"silence takes a node ({', '.join(NODE_IDS)}); other faults none, got {self.node!r}")
+        if (self.fault == "bus_off") != (self.outage_s is not None) or (self.outage_s is not None and
+                                                                        not 0.0 < self.outage_s <= 10.0):
+            raise ValueError(f"bus_off takes an outage in (0, 10] s; other faults none, got {self.outage_s!r}")
 
     @property
     def name(self) -> str:
@@ -88,6 +95,8 @@ class FaultCase:
             parts.append(self.direction)
         if self.node:
             parts.append(self.node)
+        if self.outage_s is not None:
+            parts.append(f"{self.outage_s:g}s")
         return "_".join(parts) + f"_seed{self.seed}"
 
     def specs(self) -> tuple[FaultSpec, FaultSpec]:
@@ -111,7 +120,8 @@ def default_cases(seeds: Iterable[int] = (0,), loss_seeds: Iterable[int] = ()) -
                   FaultCase("reorder", 0.05, seed=seed),
                   FaultCase("corrupt", 0.01, "from_leg", seed=seed), FaultCase("corrupt", 0.001, "to_leg", seed=seed)]
         cases += [FaultCase("silence", node=n, seed=seed) for n in NODE_IDS]
-        cases += [FaultCase("kill", seed=seed), FaultCase("cut", seed=seed)]
+        cases += [FaultCase("kill", seed=seed), FaultCase("cut", seed=seed),
+                  FaultCase("bus_off", seed=seed, outage_s=0.03), FaultCase("bus_off", seed=seed, outage_s=0.5)]
     have = {c.name for c in cases}
     cases += [c for c in (FaultCase("drop", 0.05, seed=s) for s in loss_seeds) if c.name not in have]
     return cases
@@ -298,6 +308,8 @@ def _event(case: FaultCase, run, watch: HeartbeatWatch, save, save_every_s: floa
         ls.kill_controller()
     elif case.fault == "cut":
         ls.cut_bus()
+    elif case.fault == "bus_off":
+        ls.bus_off(case.outage_s)
     else:
         ls.silence([NODE_IDS[case.node]])
     t_idle = _run_until_idle(ls, watch)
@@ -305,7 +317,10 @@ def _event(case: FaultCase, run, watch: HeartbeatWatch, save, save_every_s: floa
         ls.step()
         watch.poll(ls.t_s)
     beats = watch.idle_t_s
-    return {
+    extra = {}
+    if case.fault == "bus_off":
+        extra = {"bus_events": dict(ls.loop.io.bus_events), "still_walking": ls.loop.phase is Phase.WALK}
+    return {**extra,
         "safe_state_ms": None if t_idle is None else (t_idle - t0) * 1e3,
         "heartbeat_idle_ms": (max(beats.values()) - t0) * 1e3 if len(beats) == len(ls.loop.axes) else None,
         "axes_idle_ms_by_heartbeat": {k: (v - t0) * 1e3 for k, v in beats.items()},

@@ -244,6 +244,60 @@ class FaultyBus(can.BusABC):
         super().shutdown()
 
 
+CAN_ERR_BUSOFF = 0x40  # SocketCAN error class (linux/can/error.h): the controller went bus-off
+
+
+class BusOffBus(can.BusABC):
+    """The controller's end of a bus whose CAN controller goes bus-off for ``outage_s`` from
+    ``start_s`` (on ``clock()``).
+
+    The first receive in the outage returns a bus-off error frame, as SocketCAN delivers one;
+    every send and receive after it raises :class:`can.CanOperationError` (the interface is down),
+    and so does opening the bus again (:meth:`reopen`) until the outage is over. Frames sent to
+    the controller meanwhile are lost. Pass :meth:`reopen` to the controller as its bus factory.
+    """
+
+    def __init__(self, inner: can.BusABC, clock: Callable[[], float], start_s: float, outage_s: float) -> None:
+        self.inner = inner
+        self.clock = clock
+        self.start_s = start_s
+        self.end_s = start_s + outage_s
+        self.error_frame_sent = False
+        self.raised = 0
+        super().__init__(channel=getattr(inner, "channel_info", "bus-off"))
+
+    def _down(self) -> bool:
+        return self.start_s <= self.clock() < self.end_s
+
+    def _fail(self, what: str):
+        self.raised += 1
+        raise can.CanOperationError(f"{what}: network is down (bus-off)")
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:  # noqa: ARG002
+        if self._down():
+            self._fail("send")
+        self.inner.send(msg)
+
+    def _recv_internal(self, timeout: float | None):  # noqa: ARG002 - never blocks
+        if self._down():
+            while self.inner.recv(timeout=0.0) is not None:
+                pass  # lost while the controller is off the bus
+            if not self.error_frame_sent:
+                self.error_frame_sent = True
+                return can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, dlc=8,
+                                   data=bytes(8), is_extended_id=False), False
+            self._fail("receive")
+        return self.inner.recv(timeout=0.0), False
+
+    def reopen(self) -> "BusOffBus":
+        if self._down():
+            self._fail("open")
+        return self
+
+    def shutdown(self) -> None:  # the harness owns the inner bus; a reopen hands this one back
+        super().shutdown()
+
+
 class CutBus(can.BusABC):
     def __init__(self, inner: can.BusABC) -> None:
         self.inner = inner

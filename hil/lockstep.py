@@ -26,7 +26,7 @@ from controller.loop import ControlLoop
 from controller.premotor import Premotor
 from firmware_sim.leg import LegHardware, SimulatedLeg
 from firmware_sim.plant import RigConfig
-from hil.faults import CutBus, FaultSpec, FaultyBus
+from hil.faults import BusOffBus, CutBus, FaultSpec, FaultyBus
 
 _channel_counter = itertools.count()
 
@@ -110,6 +110,15 @@ class Lockstep:
     def silence(self, node_ids) -> None:
         """From now on, every frame these nodes send is lost before it reaches the controller."""
         self.inject_faults().silence(node_ids)
+
+    def bus_off(self, outage_s: float) -> BusOffBus:
+        """From now on, the controller's bus is off for ``outage_s``; the controller reopens it
+        with its backoff (its ``reopen`` factory fails until the outage is over)."""
+        inner = self.loop.io.bus
+        off = BusOffBus(inner, lambda: self.leg.t_s, self.leg.t_s, outage_s)
+        self.loop.io.bus = off
+        self.loop.io.reopen = off.reopen
+        return off
 
     def kill_controller(self) -> None:
         """``kill -9``: the controller stops at once; the leg and its drivers run on."""

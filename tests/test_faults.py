@@ -168,6 +168,24 @@ def test_five_percent_frame_loss_is_not_mistaken_for_silence():
         assert ls.faulty.counts()["from_leg"]["drop"] > 700  # of about 19,500 frames from the leg
 
 
+def test_a_short_bus_off_is_ridden_through_and_a_long_one_stops_safely():
+    with walking() as ls:
+        ls.bus_off(0.03)
+        for _ in range(2000):
+            ls.step()
+        assert ls.loop.phase is Phase.WALK and ls.loop.io.bus_events["bus_reopens"] == 1
+        assert not ls.axes_idle()
+    with walking() as ls:
+        ls.bus_off(0.5)
+        assert time_to_idle(ls) <= WATCHDOG_S + 2 * ls.leg.dt_s  # the drivers' watchdogs
+        for _ in range(1000):
+            ls.step()
+        io = ls.loop.io
+        assert ls.loop.phase is Phase.FAULT and io.bus_events["bus_reopen_failures"] >= 1
+        assert io.bus_events["bus_reopens"] == 1 and io.dropped["bus_off"] == 1  # back, after backoff
+        assert ls.axes_idle()
+
+
 # -- the matrix --------------------------------------------------------------------------------
 def test_cases_are_checked():
     with pytest.raises(ValueError):
