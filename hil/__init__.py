@@ -7,8 +7,10 @@ analysis and figures (:mod:`hil.analysis`, :mod:`hil.figures`, :mod:`hil.animati
 hardware-in-the-loop over SocketCAN, inside User-Mode Linux where the kernel has no CAN
 (:mod:`hil.hilrun`, :mod:`hil.uml`, :mod:`hil.replay`); the controller daemon and its periodic
 weight saves (:mod:`hil.controller_proc`, :mod:`hil.autosave`); benchmarks (:mod:`hil.bench`,
-:mod:`hil.bench_hil`); fault injection on the bus (:mod:`hil.faults`) and during weight saves
-(:mod:`hil.killsave`) and the ``elegant-stepping`` command line (:mod:`hil.cli`).
+:mod:`hil.bench_hil`); fault injection on the bus (:mod:`hil.faults`), in HIL sessions (the
+man-in-the-middle node :mod:`hil.mitm`, kill -9 and silence events :mod:`hil.hilfaults`, the
+leg's heartbeats :mod:`hil.legwatch`) and during weight saves (:mod:`hil.killsave`) and the
+``elegant-stepping`` command line (:mod:`hil.cli`).
 
 May import everything: ``controller``, ``firmware_sim``, ``protocol``, ``urdf``. It is the only
 package that sees both sides of the bus.

@@ -391,7 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     mitm.add_argument("--silence-node", type=int, default=None, metavar="ID",
                       help="the node to silence (its frames to the controller dropped) on SIGUSR1 or at --silence-after-s")
     mitm.add_argument("--silence-after-s", type=float, default=None, metavar="T", help="silence the node T s after start")
-    mitm.add_argument("--poll-s", type=_positive(float), default=0.0005, help="poll period [s] (default 0.0005)")
+    mitm.add_argument("--poll-s", type=_positive(float), default=None,
+                      help="pause after each batch of frames [s] (default 0.0005; 0.002 inside User-Mode Linux)")
     mitm.add_argument("--seconds", type=_positive(float), default=None, help="stop after this long (default: run)")
     mitm.add_argument("--json", default=None, metavar="FILE", help="write the counts here at exit")
     mitm.add_argument("--ready-file", default=None, metavar="FILE", help="create this file once both channels are open")

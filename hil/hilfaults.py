@@ -56,9 +56,13 @@ LEG_CHANNEL = "vcan1"
 EVENT_AFTER_S = 1.0  # an event happens this long after its trial was requested [s]
 SAFE_WAIT_S = 3.0  # after the bound, how much longer to wait for every axis in IDLE [s]
 # How far past the bound a safe state may come and still count as in time [ms], by platform.
-# User-Mode Linux is one virtual CPU near saturation: a heartbeat that is due can wait there for
-# the plant's process to be scheduled (measured: see tests/test_hil_vcan.py and the README).
-TOLERANCE_MS = {"native": 20.0, "uml": 60.0}
+# The drivers' watchdog and heartbeat run on the plant's simulated time, paced to the wall clock
+# in 1 ms (natively) or 2 ms slices (User-Mode Linux); when the plant's process is not scheduled,
+# both come late by that stall. Inside UML (one virtual CPU near saturation) the plant's longest
+# pacing period measured in these sessions was 37 ms; with the mitm's 2 ms poll: 50 ms. Natively,
+# 20 ms. The bound itself is not widened: ``within_bound`` reports against bound + tolerance, and
+# ``safe_state_ms`` and ``bound_ms`` are both in the metrics.
+TOLERANCE_MS = {"native": 20.0, "uml": 50.0}
 
 
 def leg_axes() -> dict[str, int]:
@@ -166,18 +170,6 @@ def add_hil_fault_args(p) -> None:
                    help="kill -9 the controller 1 s into trial K (0-based); the session ends at the safe state")
 
 
-def _request(client: "ScenarioClient", msg: dict[str, Any], op: str, timeout_s: float = 30.0) -> dict[str, Any]:
-    """Send ``msg`` on the side channel and return the first reply whose op is ``op`` (a trial's
-    ``trial_done`` may come first; it is skipped)."""
-    client.send(msg)
-    deadline = time.monotonic() + timeout_s
-    while True:
-        reply = client.receive(max(1.0, deadline - time.monotonic()))
-        if reply.get("op") == op:
-            return reply
-        log.info("side channel: skipped %s while waiting for %s", reply.get("op"), op)
-
-
 class FaultSession:
     """The fault side of one HIL session: the mitm process, the heartbeat watcher, the event."""
 
@@ -221,8 +213,6 @@ class FaultSession:
                "--seed", str(plan.seed), "--json", str(self.work / "mitm.json"), "--ready-file", str(ready)]
         if plan.silence_node is not None:
             cmd += ["--silence-node", str(plan.silence_node)]
-        if os.environ.get("ES_MITM_POLL_S"):
-            cmd += ["--poll-s", os.environ["ES_MITM_POLL_S"]]
         self._mitm_log = open(self.work / "mitm.log", "w")
         self.mitm = subprocess.Popen(cmd, stdout=self._mitm_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                      env=self.env)
@@ -287,7 +277,7 @@ class FaultSession:
         time.sleep(plan.event_after_s)
         if controller.poll() is not None or firmware.poll() is not None or not self.alive():
             raise HilError("a process of the session ended before the event")
-        self.status_before = _request(client, {"op": "status"}, "status")
+        self.status_before = client.request({"op": "status"}, expect="status")
         if plan.kind == "kill":
             self.t_event_unix, self.t_event_mono = time.time(), time.monotonic()
             os.kill(controller.pid, signal.SIGKILL)
@@ -307,7 +297,7 @@ class FaultSession:
                 break
         self.waited_ms = (time.monotonic() - self.t_event_mono) * 1e3
         time.sleep(2 * self.heartbeat_s)  # a heartbeat or two more: does the safe state hold?
-        self.status_after = _request(client, {"op": "status"}, "status")
+        self.status_after = client.request({"op": "status"}, expect="status")
         if result is None or result["safe_state_ms"] is None:
             self.say(f"no safe state within {self.waited_ms:.0f} ms of the {plan.kind}")
         else:
@@ -524,13 +514,23 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
     f, h = m.get("fault", {}), m["hil"]
     cmds, weights = f.get("commands", {}), f.get("weights", {})
     event = kind in ("kill", "silence")
-    # Weights: after a kill only a periodic save can have written them; a file that is there
-    # must load. After a clean stop (silence, rate faults) the controller saves them at exit.
-    expected = (not event) or kind == "silence"
+    # Weights: a file that is there must load. After a clean stop (silence, rate faults) the
+    # controller saves them at exit; after a kill only a periodic save (every_s of walking) can
+    # have written them, so the file is expected only if the leg walked that long (+1 s) before.
+    from hil.autosave import AutosaveConfig
+
+    walked = f.get("walk_s_at_event")
+    expected = kind != "kill" or (walked is not None and walked >= AutosaveConfig.every_s + 1.0)
     data_lost = bool((weights.get("exists") and not weights.get("loads")) or (expected and not weights.get("exists")))
+    weights = {**weights, "expected": expected,
+               "note": None if kind != "kill" else
+               f"killed after {walked:.1f} s of walking; periodic saves every {AutosaveConfig.every_s:g} s"
+               if walked is not None else None}
     row.update({
         "platform": h.get("where"),
-        "safe_state_ms": f.get("safe_state_ms"),
+        # as in the lockstep rows: safe_state_ms when the drivers themselves were IDLE (their own
+        # clock), heartbeat_idle_ms when every axis's heartbeat on the leg's bus said so
+        "safe_state_ms": f.get("driver_safe_state_ms"),
         "heartbeat_idle_ms": f.get("safe_state_ms"),
         "driver_idle_ms": f.get("driver_safe_state_ms"),
         "bound_ms": f.get("bound_ms"),

@@ -19,6 +19,11 @@ latency: on the bus recording, from each Set_Input_Pos to the next Get_Encoder_E
 the same axis (kernel receive timestamps of the recorder's socket). ``hil``: where it ran,
 frames each way, phases, watchdog trips, process exit codes.
 
+With fault options (:class:`hil.hilfaults.FaultPlan`: rate faults, kill -9 of the controller,
+silence of a node) the firmware-sim process is on a second channel behind the man-in-the-middle
+node (:mod:`hil.mitm`), and ``metrics.json`` gets a ``fault`` section (:mod:`hil.hilfaults`).
+Without them the session is as described above.
+
 Where the kernel has no vcan, the whole session runs inside User-Mode Linux (:mod:`hil.uml`).
 """
 

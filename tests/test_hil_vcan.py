@@ -148,3 +148,87 @@ def test_the_runner_is_shipped_with_the_project():
     root = Path(__file__).resolve().parents[1]
     for name in ("run-in-uml.sh", "uml-init", "xstate-shim.c", "coarse-time.c"):
         assert (root / "hil" / "uml" / name).exists(), name
+
+
+# -- fault injection: kill -9 of the controller, frame loss through the man-in-the-middle node ------
+KILL_TRIALS, KILL_AT = 3, 1
+DROP_TRIALS = 3
+
+
+def _hil(out: Path, *extra: str, trials: int) -> tuple[subprocess.CompletedProcess, dict]:
+    cmd = [sys.executable, "-m", "hil.cli", "hil", "--trials", str(trials), "--seed", "0", "--out", str(out),
+           "--log-format", "log", "--quiet", *extra]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
+    path = out / "metrics.json"
+    assert path.exists(), f"hil wrote no metrics (exit {done.returncode}):\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    return done, json.loads(path.read_text())
+
+
+@pytest.fixture(scope="module")
+def kill_run(vcan_place, tmp_path_factory):
+    return _hil(tmp_path_factory.mktemp("hil_kill"), "--kill-controller-at-trial", str(KILL_AT), trials=KILL_TRIALS)
+
+
+@pytest.fixture(scope="module")
+def drop_run(vcan_place, tmp_path_factory):
+    return _hil(tmp_path_factory.mktemp("hil_drop"), "--faults-to-leg", "drop=0.05", "--faults-from-leg", "drop=0.05",
+                trials=DROP_TRIALS)
+
+
+@pytest.mark.vcan
+def test_kill_9_of_the_controller_leaves_every_axis_idle_within_the_bound(kill_run):
+    done, m = kill_run
+    f, h = m["fault"], m["hil"]
+    assert done.returncode == 0, f"{h['error']}\n{done.stderr[-3000:]}"
+    assert f["kind"] == "kill" and f["at_trial"] == KILL_AT and h["trials_completed"] == KILL_AT
+    assert f["states_before"] == {"hip": "CLOSED_LOOP_CONTROL", "knee": "CLOSED_LOOP_CONTROL"}
+    # The bound: the drivers' watchdog (0.1 s) plus one heartbeat period (0.1 s), as the leg's
+    # heartbeats show it. Both run on the plant process's clock, so a stall of that process
+    # delays them by as much: the slack is the longest period that process had in this very
+    # session (measured, not a wall-clock budget), plus the man-in-the-middle's 2 ms poll.
+    assert f["bound_ms"] == pytest.approx(200.0)
+    stall_ms = m["timing"]["firmware"]["max_period_us"] / 1e3
+    assert f["safe_state_ms"] is not None
+    assert f["safe_state_ms"] <= f["bound_ms"] + stall_ms + 3.0, (f, stall_ms)
+    for axis in ("hip", "knee"):  # each driver went IDLE on its watchdog, before its heartbeat said so
+        assert f["driver_idle_ms"][axis] is not None
+        assert f["driver_idle_ms"][axis] <= 100.0 + stall_ms + 3.0, (f, stall_ms)
+        assert f["driver_idle_ms"][axis] <= f["axes_idle_ms"][axis] + 5.0
+    assert f["watchdog_trips_after_event"] == 2  # both axes stopped by their own watchdogs
+    assert f["axes_after"] == {"hip": "IDLE", "knee": "IDLE"}
+
+
+@pytest.mark.vcan
+def test_after_the_kill_the_session_ends_cleanly(kill_run):
+    _, m = kill_run
+    f, h = m["fault"], m["hil"]
+    assert h["exit_codes"] == {"controller": -9, "firmware_sim": 0}  # -9: killed on purpose
+    assert f["controller_exit_expected"] and f["mitm_exit_code"] == 0
+    assert f["commands"]["controller_outside_limits"] == 0 and f["commands"]["driver_targets_outside_limits"] == 0
+    assert not (f["weights"]["exists"] and not f["weights"]["loads"])  # no half-written weights
+
+
+@pytest.mark.vcan
+def test_frames_flow_through_the_mitm_with_5_percent_loss(drop_run):
+    done, m = drop_run
+    f, h = m["fault"], m["hil"]
+    assert done.returncode == 0, f"{h['error']}\n{done.stderr[-3000:]}"
+    assert f["kind"] == "rate" and f["mitm_exit_code"] == 0
+    for direction in ("to_leg", "from_leg"):
+        c = f["mitm"][direction]
+        assert c["frames_in"] > 1000, c
+        assert 0.02 < c["drop"] / c["frames_in"] < 0.08, c
+        assert c["forwarded"] == c["frames_in"] - c["drop"] and c["send_errors"] == 0, c
+    assert h["bus"]["leg_to_controller"] == f["mitm"]["from_leg"]["forwarded"]  # the recorder is on the controller's side
+    assert h["firmware_host"]["rx"] > 1000
+
+
+@pytest.mark.vcan
+def test_with_5_percent_loss_the_axes_stay_in_closed_loop_and_the_trials_complete(drop_run):
+    _, m = drop_run
+    h = m["hil"]
+    assert h["trials_completed"] == DROP_TRIALS and len(m["trials"]) == DROP_TRIALS
+    assert h["axes_while_running"] == {"hip": "CLOSED_LOOP_CONTROL", "knee": "CLOSED_LOOP_CONTROL"}
+    assert "fault" not in h["phases"], h["fault_cause"]
+    assert h["watchdog_trips"] == 0
+    assert h["axes_at_end"] == {"hip": "IDLE", "knee": "IDLE"}
