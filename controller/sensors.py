@@ -5,7 +5,9 @@ Readings are validated here, and a frame is applied whole or not at all: a handl
 False (the frame is counted ``invalid`` and dropped by :class:`controller.bus_io.BusIO`) for
 
 - a range, profile or contacts frame whose sequence counter does not advance (a duplicate or
-  out of order; a gap is counted as lost samples);
+  out of order; a gap is counted as lost samples), or jumps by more than ``MAX_SEQ_GAP`` (16)
+  either way until the stream's next frame confirms the jump (a corrupted counter costs one
+  frame; a restarted board is followed after two);
 - a range frame whose Range_Valid is neither 0 nor 1, or which is valid with a range that is
   NaN or outside [0, ``range_max_m``] (the sensor's reach; the board clips to it);
 - a profile frame with a beam that is neither "no return" (0xFFFF, 65.535 m) nor a distance in
@@ -26,6 +28,7 @@ PROFILE_MAX_M = 3.0  # the profile beams' reach [m]; a closer-than-no-return rea
 RANGE_MAX_M = 3.0  # the range finder's reach [m] (the board clips its readings to it)
 _NO_RETURN_FROM_M = PROFILE_NO_RETURN_M - 0.0005  # half a raw step below the sentinel
 _HALF_MM = 0.0005  # half a raw step of SB_Range / SB_Profile (1 mm): decoding rounds within it
+MAX_SEQ_GAP = 16  # a sequence number further from the last than this is believed only once confirmed
 
 
 class SensorLink:
@@ -72,14 +75,32 @@ class SensorLink:
         self.heartbeat_t_s = -math.inf
         self.board_error = 0
         self.board_state = 0
+        self._jumps: dict[str, int] = {}  # per stream: the sequence number of a jump not yet believed
 
-    @staticmethod
-    def _advance(last: int, seq: int) -> int:
-        """Frames between the last sequence number and this one (1 = the next; <= 0 = stale)."""
+    def _advance(self, stream: str, last: int, seq: int) -> int:
+        """Frames between the last sequence number of ``stream`` and this one (1 = the next;
+        <= 0 = stale: rejected).
+
+        A jump of more than :data:`MAX_SEQ_GAP` either way is a corrupted counter or a board that
+        restarted. It is not believed (0: rejected) until the stream's next frame follows it,
+        which then resynchronises the stream (1). So one corrupted counter costs one frame, not
+        the 100-odd genuine frames that would look stale behind a counter that jumped ahead.
+        """
         if last < 0:
             return 1
         delta = (seq - last) % 256
-        return delta if delta < 128 else delta - 256
+        step = delta if delta < 128 else delta - 256
+        jumps = self._jumps
+        if -MAX_SEQ_GAP < step <= MAX_SEQ_GAP:
+            if step > 0 and stream in jumps:
+                del jumps[stream]
+            return step
+        candidate = jumps.get(stream)
+        jumps[stream] = seq
+        if candidate is not None and (seq - candidate) % 256 == 1:
+            del jumps[stream]
+            return 1
+        return 0
 
     def on_range(self, values: tuple, now_s: float) -> bool:
         """SB_Range: (range_m, valid, seq). False (dropped) for a Range_Valid other than 0/1, a
@@ -90,7 +111,7 @@ class SensorLink:
             if valid != 1 or not 0.0 <= range_m <= self._range_top_m:  # False for NaN too
                 self.range_invalid += 1
                 return False
-        step = self._advance(self.range_seq, int(seq))
+        step = self._advance("range", self.range_seq, int(seq))
         if step <= 0:
             self.range_out_of_sequence += 1
             return False
@@ -119,7 +140,7 @@ class SensorLink:
             else:
                 self.profile_invalid += 1
                 return False
-        step = self._advance(self.profile_seq, int(seq))
+        step = self._advance("profile", self.profile_seq, int(seq))
         if step <= 0:
             self.profile_out_of_sequence += 1
             return False
@@ -137,7 +158,7 @@ class SensorLink:
         if foot not in (0, 1) or shin not in (0, 1):
             self.contacts_invalid += 1
             return False
-        step = self._advance(self.contacts_seq, int(seq))
+        step = self._advance("contacts", self.contacts_seq, int(seq))
         if step <= 0:
             self.contacts_out_of_sequence += 1
             return False

@@ -388,6 +388,9 @@ def killsave_row(kills: int, seed: int, out_dir: str | Path) -> dict[str, Any]:
             "data_lost": counts["corrupt_loads"] > 0, "success_last_50": None, "killsave": counts}
 
 
+WATCHDOGS_STOPPED = "the drivers' watchdogs stopped the axes"
+
+
 def _fmt(value: Any, unit: str = "") -> str:
     if value is None:
         return "-"
@@ -406,6 +409,9 @@ def table(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         if "error" in r:
             notes = f"error: {r['error']}"
+        elif r.get("stopped_at_trial") is not None and r["fault"] in EVENTS:  # HIL: the event ends the session
+            notes = (f"event in trial {r['stopped_at_trial'] + 1}; "
+                     f"{r.get('fault_cause') or WATCHDOGS_STOPPED}")
         elif r.get("stopped_at_trial") is not None:
             notes = f"safe stop in trial {r['stopped_at_trial'] + 1}: {r.get('fault_cause')}"
         elif r.get("killsave"):
@@ -413,10 +419,20 @@ def table(rows: list[dict[str, Any]]) -> str:
             notes = ", ".join(f"{key} {k[key]}" for key in ("kills", "loads_ok_from_file", "loads_from_prev", "zeros",
                                                             "corrupt_loads") if key in k)
         elif r.get("mistakes_101_150") is not None:
-            notes = f"{r['mistakes_101_150']} mistakes in trials 101-150"
+            m = r["mistakes_101_150"]
+            notes = f"{m} mistake{'' if m == 1 else 's'} in trials 101-150"
+        elif r.get("still_walking"):
+            ev = r.get("bus_events", {})
+            notes = f"ridden through: bus reopened after {ev.get('bus_reopen_failures', 0) + 1} attempt(s), still walking"
+        elif r["fault"] == "kill":
+            notes = WATCHDOGS_STOPPED
+        elif r["fault"] in FAULT_KINDS and r.get("trials_completed") is not None and r["trials_completed"] < 50:
+            notes = f"{r['trials_completed']} trials from zero weights: the success column is over all of them"
         else:
             notes = r.get("fault_cause") or ""
         where = r.get("node") or (r.get("direction") if r.get("rate") is not None else "") or ""
+        if r.get("outage_s") is not None:
+            where = f"outage {r['outage_s']:g} s"
         outside = f"{_fmt(r.get('commands_outside_limits'))} / {_fmt(r.get('driver_targets_outside_limits'))}"
         rate = "-" if r.get("rate") is None else f"{r['rate']:g}"
         lines.append(f"| {r['fault']} | {rate} "
@@ -438,10 +454,16 @@ def main_faults(args) -> int:
     rows = run_matrix(cases, args.trials, out, workers=args.workers, progress=not args.quiet)
     if args.kills and (not args.only or "kill_during_save" in args.only):
         rows.append(killsave_row(args.kills, 0, out))
-    if args.hil:
-        from hil.hilfaults import hil_rows
+    if args.hil:  # read back when done before with as many trials, like the lockstep cases
+        done = out / "hil" / "rows.json"
+        hil = json.loads(done.read_text()) if done.exists() else None
+        if not hil or hil.get("trials") != args.hil_trials:
+            from hil.hilfaults import hil_rows
 
-        rows += hil_rows(out / "hil", seed=0, trials=args.hil_trials)
+            hil = {"trials": args.hil_trials, "rows": hil_rows(out / "hil", seed=0, trials=args.hil_trials)}
+            done.parent.mkdir(parents=True, exist_ok=True)
+            done.write_text(json.dumps(hil, indent=1) + "\n")
+        rows += hil["rows"]
     text = json.dumps(rows, indent=1) + "\n"
     if args.json in (None, "-"):
         print(text)

@@ -415,3 +415,15 @@ def test_a_heartbeat_with_an_error_in_closed_loop_or_unknown_bits_is_dropped():
     bus.push(heartbeat(0, AxisState.IDLE, error=0x1000000))  # a real watchdog trip
     io.drain(0.2)
     assert not hip.closed_loop and hip.error == 0x1000000 and hip.state is AxisState.IDLE
+
+
+def test_a_corrupted_sequence_number_costs_one_frame_and_a_restart_is_followed():
+    s = SensorLink(16)
+    for seq in range(10):
+        assert s.on_range((1.0, 1, seq), seq * 0.02)
+    assert not s.on_range((1.0, 1, 110), 0.2)  # a counter corrupted far ahead: not believed
+    assert all(s.on_range((1.0, 1, seq), seq * 0.02) for seq in range(10, 40))  # the genuine stream goes on
+    assert s.range_seq == 39 and s.range_lost == 0
+    assert not s.on_range((1.0, 1, 0), 1.0)  # the board restarted: the first frame is a jump
+    assert s.on_range((1.0, 1, 1), 1.02) and s.range_seq == 1  # the second confirms it
+    assert s.on_range((1.0, 1, 3), 1.06) and s.range_lost == 1  # an ordinary gap

@@ -217,3 +217,18 @@ def test_matrix_rows_have_the_issue_fields_and_are_deterministic(tmp_path):
     assert a["commands_outside_limits"] == 0 and a["data_lost"] is False
     text = table([kill, a])
     assert "| kill |" in text and "| drop | 0.05 |" in text and not math.isnan(kill["safe_state_ms"])
+
+
+def test_the_faults_command_writes_rows_and_a_table(tmp_path):
+    from hil.cli import main
+
+    out, js = tmp_path / "m", tmp_path / "faults.json"
+    assert main(["faults", "--only", "kill,kill_during_save", "--kills", "20", "--out", str(out), "--json", str(js),
+                 "--quiet"]) == 0
+    rows = json.loads(js.read_text())
+    assert [r["fault"] for r in rows] == ["kill", "kill_during_save"]
+    kill, save = rows
+    assert kill["safe_state_ms"] <= (WATCHDOG_S + 0.002) * 1e3 and kill["commands_outside_limits"] == 0
+    assert save["killsave"]["kills"] == 20 and save["killsave"]["corrupt_loads"] == 0 and save["data_lost"] is False
+    report = (out / "report.md").read_text()
+    assert "| kill |" in report and "| kill_during_save |" in report
