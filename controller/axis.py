@@ -120,11 +120,13 @@ class AxisLink:
         self._mode = contract.codec("Set_Controller_Mode")
         self._clear = contract.codec("Clear_Errors")
         self._estop = contract.codec("Estop")
+        self._limits = contract.codec("Set_Limits")
         self.pos_id = contract.odrive_id(node, "Set_Input_Pos")
         self.state_id = contract.odrive_id(node, "Set_Axis_State")
         self.mode_id = contract.odrive_id(node, "Set_Controller_Mode")
         self.clear_id = contract.odrive_id(node, "Clear_Errors")
         self.estop_id = contract.odrive_id(node, "Estop")
+        self.limits_id = contract.odrive_id(node, "Set_Limits")
         self.heartbeat_id = contract.odrive_id(node, "Heartbeat")
         self.encoder_id = contract.odrive_id(node, "Get_Encoder_Estimates")
         # joint <-> motor unit factors, precomputed for the 500 Hz path
@@ -228,6 +230,11 @@ class AxisLink:
     def mode_frame(self, control: ControlMode, input_mode: InputMode) -> can.Message:
         data = self._mode.pack(int(control), int(input_mode))
         return data_frame(self.mode_id, data)
+
+    def limits_frame(self) -> can.Message:
+        """Set_Limits: the configured velocity limit [rev/s, motor side] and current limit [A]."""
+        c = self.config
+        return data_frame(self.limits_id, self._limits.pack(c.vel_limit_rev_s, c.current_limit_a))
 
     def clear_errors_frame(self) -> can.Message:
         return data_frame(self.clear_id, self._clear.pack(0))

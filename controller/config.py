@@ -28,6 +28,14 @@ class AxisConfig:
         direction: +1 or -1, the sign from joint angle to motor angle; default +1.
         zero_offset_rev: motor position [rev] at joint angle 0 (calibration); default 0.0.
         min_rad, max_rad: the joint's allowed range [rad]; no target outside it is ever sent.
+        current_limit_a: the motor current limit sent to the axis with Set_Limits at arming
+            (ODrive's ``motor.config.current_lim`` at run time) [A]; it bounds the torque to
+            Kt times this. Default 20.0, the simulated drivers' hardware limit (a lower value
+            lowers their torque clamp, a higher one is capped by the hardware).
+        vel_limit_rev_s: the velocity limit sent with Set_Limits at arming (ODrive's
+            ``controller.config.vel_limit``, motor side) [rev/s]; default 20.0, the simulated
+            drivers' own default. Keep it well below ``FeedbackLimits.max_vel_rev_s`` (100):
+            faster encoder readings are taken for corrupted frames.
     """
 
     name: str
@@ -37,6 +45,8 @@ class AxisConfig:
     gear_ratio: float = 6.0
     direction: int = 1
     zero_offset_rev: float = 0.0
+    current_limit_a: float = 20.0
+    vel_limit_rev_s: float = 20.0
 
     def __post_init__(self) -> None:
         _check(f"axes.{self.name}.node_id", self.node_id, 0, 63, "")
@@ -47,6 +57,8 @@ class AxisConfig:
             raise ValueError(f"axes.{self.name}.direction must be +1 or -1, got {self.direction!r}")
         if not self.min_rad < self.max_rad:
             raise ValueError(f"axes.{self.name}: min_rad {self.min_rad} must be below max_rad {self.max_rad}")
+        _check(f"axes.{self.name}.current_limit_a", self.current_limit_a, 0.1, 200.0, "A")
+        _check(f"axes.{self.name}.vel_limit_rev_s", self.vel_limit_rev_s, 0.1, 80.0, "rev/s")
 
     def rad_to_rev(self, q_rad: float) -> float:
         return self.zero_offset_rev + self.direction * self.gear_ratio * q_rad / (2.0 * math.pi)

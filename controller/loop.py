@@ -151,6 +151,7 @@ class ControlLoop:
                 if not a.closed_loop:
                     self.io.send(a.clear_errors_frame())
                     self.io.send(a.mode_frame(ControlMode.POSITION_CONTROL, InputMode.PASSTHROUGH))
+                    self.io.send(a.limits_frame())
                     self.io.send(a.state_frame(AxisState.CLOSED_LOOP_CONTROL))
         # hold the measured position (an armed axis then stays put, and its watchdog is fed)
         for a in self.axes:

@@ -1,9 +1,10 @@
 """Bring-up and supervision: the controller's phases and what moves it between them.
 
 WAIT_NODES  until every axis and the sensor board has sent a heartbeat (timeout: FAULT).
-ARMING      Clear_Errors, Set_Controller_Mode(POSITION_CONTROL, PASSTHROUGH) and
-            Set_Axis_State(CLOSED_LOOP_CONTROL) to each axis, repeated every 0.5 s, holding the
-            measured position, until every heartbeat reports CLOSED_LOOP_CONTROL with no error.
+ARMING      Clear_Errors, Set_Controller_Mode(POSITION_CONTROL, PASSTHROUGH), Set_Limits (the
+            axis's configured velocity and current limits) and Set_Axis_State(CLOSED_LOOP_CONTROL)
+            to each axis, repeated every 0.5 s, holding the measured position, until every
+            heartbeat reports CLOSED_LOOP_CONTROL with no error.
 RAMP        a smooth move from the pose found at bring-up to the gait's start pose.
 WALK        the CPG runs.
 FAULT       an axis left closed loop or reported an error, or a node went silent: every axis is

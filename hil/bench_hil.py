@@ -231,14 +231,16 @@ def run_floor_echo(seconds: float, work: Path, channel: str, rate_hz: float) -> 
 
 def run_hil_pair(seconds: float, work: Path, channel: str, seed: int, bringup_timeout_s: float = 180.0) -> dict[str, Any]:
     """The controller daemon and the firmware-sim process walking for ``seconds``."""
-    from hil.configfile import controller_config_to_dict
+    from controller.settings import write_config
+    from hil.configfile import session_config
     from hil.controller_proc import read_records
     from hil.hilrun import (BusRecorder, HilError, ScenarioClient, session_controller_config, session_envs,
                             stop_session)
     from hil.learn import LearnConfig
 
     ctl_config = session_controller_config(LearnConfig(trials=1, seed=seed))
-    (work / "controller.json").write_text(json.dumps(controller_config_to_dict(ctl_config)) + "\n")
+    write_config(work / "controller.toml", session_config(ctl_config, channel),
+                 header="the controller's configuration in this bench --hil run (written by hil.bench_hil)")
     records_path, ticks_path = work / "controller.jsonl", work / "controller.ticks"
     recorder = BusRecorder(channel, work / "bus.log")
     recorder.start()
@@ -263,7 +265,7 @@ def run_hil_pair(seconds: float, work: Path, channel: str, seed: int, bringup_ti
     try:
         client = ScenarioClient(addr, bringup_timeout_s, alive)
         controller = subprocess.Popen(
-            [*py, "controller", *bus_args, "--config", str(work / "controller.json"), "--records", str(records_path),
+            [*py, "controller", *bus_args, "--config", str(work / "controller.toml"), "--records", str(records_path),
              "--ticks", str(ticks_path)],
             stdout=ctl_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env)
         while walk_mono is None:

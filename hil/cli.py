@@ -185,12 +185,12 @@ def cmd_firmware_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_controller(args: argparse.Namespace) -> int:
-    from hil.configfile import load_controller_config
+    from hil.configfile import daemon_settings
     from hil.controller_proc import run_controller
 
-    final = run_controller(_bus_kw(args), load_controller_config(args.config), records=args.records,
-                           weights=args.weights, ticks=args.ticks, duration_s=args.seconds,
-                           save_every_s=args.save_every_s)
+    d = daemon_settings(args.config, args.interface, args.channel, args.bitrate, args.weights, args.save_every_s)
+    final = run_controller(d.bus_kw, d.controller, records=args.records, weights=d.weights, ticks=args.ticks,
+                           duration_s=args.seconds, save_every_s=d.save_every_s)
     final.pop("weights", None)
     print(json.dumps(final), file=sys.stderr)
     if final["weights_saved"] is False:
@@ -198,6 +198,18 @@ def cmd_controller(args: argparse.Namespace) -> int:
     if final["stopped_by"] in ("SIGTERM", "SIGINT"):
         return 0  # a stop asked for, done in order: axes IDLE, weights saved (a fault is in the final record)
     return 0 if final["phase"] != "fault" else 1
+
+
+def cmd_config_check(args: argparse.Namespace) -> int:
+    from hil.configfile import main_config_check
+
+    return main_config_check(args)
+
+
+def cmd_config_show(args: argparse.Namespace) -> int:
+    from hil.configfile import main_config_show
+
+    return main_config_show(args)
 
 
 def cmd_hil(args: argparse.Namespace) -> int:
@@ -350,16 +362,27 @@ def build_parser() -> argparse.ArgumentParser:
 
     ctl = sub.add_parser("controller", help="the controller daemon at its fixed rate on a CAN bus")
     _add_bus_args(ctl)
-    ctl.add_argument("--config", default=None, metavar="FILE", help="controller configuration (JSON; defaults otherwise)")
+    ctl.add_argument("--config", default=None, metavar="FILE",
+                     help="the configuration (TOML, see configs/; defaults otherwise): bus, controller, axes, weights")
     ctl.add_argument("--records", default=None, metavar="FILE", help="write the controller's records here (JSON lines)")
     ctl.add_argument("--weights", default=None, metavar="FILE",
                      help="resume from these learned weights (else FILE.prev, else zeros) and save them here "
-                          "while walking and at exit (.npz)")
-    ctl.add_argument("--save-every-s", type=_positive(float), default=10.0,
-                     help="with --weights: save every this many seconds of walking, if they changed (default 10)")
+                          "while walking and at exit (.npz; default: the configuration's [weights] path)")
+    ctl.add_argument("--save-every-s", type=_positive(float), default=None,
+                     help="save the weights every this many seconds of walking, if they changed "
+                          "(default: the configuration's [weights] save_every_s, else 10)")
     ctl.add_argument("--ticks", default=None, metavar="FILE", help="write every tick's clock here (for replay)")
     ctl.add_argument("--seconds", type=_positive(float), default=None, help="stop after this long (default: run)")
     ctl.set_defaults(func=cmd_controller)
+
+    config = sub.add_parser("config", help="the configuration file (TOML): check it, or show the effective one")
+    config_sub = config.add_subparsers(dest="config_command", required=True)
+    check = config_sub.add_parser("check", help="validate FILE: exit 0 and a summary, or 2 and every problem")
+    check.add_argument("file", metavar="FILE", help="a TOML configuration, e.g. configs/odrive-leg.toml")
+    check.set_defaults(func=cmd_config_check)
+    show = config_sub.add_parser("show", help="print the effective configuration (FILE's, with every default) as TOML")
+    show.add_argument("file", metavar="FILE", nargs="?", default=None, help="a TOML configuration (default: none)")
+    show.set_defaults(func=cmd_config_show)
 
     hil = sub.add_parser("hil", help="learning trials with the controller and the simulated leg as two processes "
                                      "on a real SocketCAN bus (inside User-Mode Linux where the kernel has no CAN)")
@@ -380,6 +403,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_hil_fault_args(hil)
     hil.set_defaults(func=cmd_hil)
+
+    from hil.dryrun import add_dryrun_args, main_dryrun
+
+    dryrun = sub.add_parser("dryrun", help="the deployment dry run: the systemd unit's command line against the "
+                                           "simulated leg on vcan0, playing systemd's notify socket; a checklist")
+    add_dryrun_args(dryrun)
+    dryrun.set_defaults(func=main_dryrun)
 
     mitm = sub.add_parser("mitm", help="a man-in-the-middle node: forward between two SocketCAN channels, "
                                        "injecting faults; silence a node (SIGUSR1 or --silence-after-s)")
@@ -415,7 +445,8 @@ def build_parser() -> argparse.ArgumentParser:
     replay = sub.add_parser("replay", help="feed a recorded bus log to the controller offline; print its decisions")
     replay.add_argument("log", help="bus log (.blf, .log, .asc, ...) recorded by hil")
     replay.add_argument("--config", default=None, metavar="FILE",
-                        help="controller configuration (default: controller.json beside the log, else defaults)")
+                        help="configuration (TOML; default: controller.toml beside the log, else an old "
+                             "controller.json there, else defaults)")
     replay.add_argument("--records", default=None, metavar="FILE",
                         help="the live run's records to compare with (default: controller.jsonl beside the log)")
     replay.add_argument("--json", default=None, help="also write the replayed decisions as JSON here ('-': stdout)")
@@ -439,6 +470,14 @@ def build_parser() -> argparse.ArgumentParser:
     killsave.add_argument("--folder", default=None, help="where to save (default: a temporary folder, removed)")
     killsave.add_argument("--json", default="-", help="where to write the counts (default: stdout)")
     killsave.set_defaults(func=cmd_killsave)
+
+    from hil.bringup_cli import add_bringup_args, main_bringup
+
+    bringup = sub.add_parser("bringup", help="bring-up checklist on real hardware: nodes, versions, errors, bus "
+                                             "voltage, positions, small slow moves; PASS/FAIL per item")
+    _add_bus_args(bringup)
+    add_bringup_args(bringup)
+    bringup.set_defaults(func=main_bringup)
     return parser
 
 

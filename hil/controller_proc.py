@@ -18,6 +18,12 @@ SIGTERM or SIGINT stops it cleanly, in order: every axis is sent Set_Axis_State(
 says why it stopped (``stopped_by``: ``"SIGTERM"``, ``"SIGINT"`` or ``"duration"``), where the
 weights came from (``weights_source``: ``"file"``, ``"prev"``, ``"zeros"``, or None without
 ``weights``), how many saves succeeded and whether the last one did (``weights_saved``).
+
+Under systemd (``Type=notify``, ``$NOTIFY_SOCKET`` set) it tells the service manager READY once the
+axes are in closed loop (RAMP), its STATUS on each phase change, WATCHDOG pings from this loop
+(every half of ``$WATCHDOG_USEC``, FAULT included) and STOPPING when the shutdown begins
+(:mod:`hil.daemon_notify`); ``final["sd_notify"]`` counts what it sent. Without
+``$NOTIFY_SOCKET`` none of it happens.
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ from controller.loop import ControlLoop, StepRecord
 from controller.supervisor import Phase
 from controller.weights import load_weights_or_fallback
 from hil.autosave import AutosaveConfig, WeightAutosave
+from hil.daemon_notify import DaemonNotify
 from hil.fastbus import lean
 from hil.pacing import Pacer
 from protocol import AxisState
@@ -124,6 +131,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                                                            saved=initial if source == "file" else None)
     rec = Records(records)
     pacer = Pacer(config.period_s, catch_up=False, late_factor=config.late_factor)
+    notify = DaemonNotify()  # systemd's READY/WATCHDOG/STATUS/STOPPING; a no-op without NOTIFY_SOCKET
     phase = None
     stats = loop.stats
     flush_every = max(1, int(round(0.1 * config.rate_hz)))
@@ -140,6 +148,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             if now >= t_end:
                 break
             loop.tick(now)
+            notify.tick(now)  # WATCHDOG=1 when due: from this loop only, so a stuck loop stops pinging
             if autosave is not None:
                 autosave.tick(now, loop.phase is Phase.WALK, weights_of(loop.premotor))
             if tick_file is not None:
@@ -152,6 +161,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                     del tick_buf[:]
             if loop.phase is not phase:
                 phase = loop.phase
+                notify.phase(phase, loop.supervisor.fault_cause)
                 rec.write({"kind": "phase", "phase": phase.value, "t_s": now,
                            "fault_cause": loop.supervisor.fault_cause or None})
                 rec.flush()
@@ -170,6 +180,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             if stats.ticks % flush_every == 0:
                 rec.flush()
     finally:
+        notify.stopping(stop["by"])
         # A clean stop: the axes go to IDLE on our word, not on their watchdogs.
         for _ in range(3):
             for a in loop.axes:
@@ -206,12 +217,14 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             "weights_source": source,
             "weights_saves": None if autosave is None else autosave.saves,
             "weights_saved": saved,
+            "sd_notify": notify.summary(),
         }
         rec.write(final)
         rec.close()
         if loop.io.bus is not bus:
             loop.io.bus.shutdown()
         raw_bus.shutdown()
+        notify.close()
         for s, handler in previous_handlers.items():
             signal.signal(s, handler)
     return final

@@ -3,7 +3,7 @@ real SocketCAN bus, at wall-clock rate.
 
 The session: a bus recorder (python-can's BLF or candump writer, in this process), the
 ``firmware-sim`` process (plant, drivers, sensor board; the scenario side channel), then the
-``controller`` process (the daemon, configured by ``DIR/controller.json``, writing its records
+``controller`` process (the daemon, configured by ``DIR/controller.toml``, writing its records
 to ``DIR/controller.jsonl`` and its weights to ``DIR/weights.npz``). Once the controller walks,
 each trial is requested from the firmware-sim process over the side channel (the controller
 learns of the obstacle only through its range sensor); the firmware-sim process measures the
@@ -325,7 +325,8 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     """One session (see the module docstring). ``faults``: the controller stays on ``channel``,
     the firmware-sim process goes to ``faults.leg_channel``, with the mitm node between them and
     the plan's event (:mod:`hil.hilfaults`); ``metrics.json`` then has a ``fault`` section."""
-    from hil.configfile import controller_config_to_dict
+    from controller.settings import write_config
+    from hil.configfile import session_config
     from hil.learn import LearnConfig, summarize
 
     started_unix = time.time()
@@ -338,7 +339,9 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     config = LearnConfig(trials=trials, seed=seed, obstacle_height_m=obstacle_height_m, range_noise_m=range_noise_m,
                          learning=learning)
     ctl_config = session_controller_config(config)
-    (work / "controller.json").write_text(json.dumps(controller_config_to_dict(ctl_config), indent=1) + "\n")
+    write_config(work / "controller.toml", session_config(ctl_config, channel),
+                 header="the controller's configuration in this hil session (written by hil.hilrun)")
+    (out / "controller.json").unlink(missing_ok=True)  # an older session's (replay would prefer the TOML anyway)
     records_path = work / "controller.jsonl"
     records_path.unlink(missing_ok=True)
     for stale in ("weights.npz", "weights.npz.prev"):  # the daemon resumes from these: a session starts fresh
@@ -397,7 +400,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
         # (A real-time priority for the controller inside User-Mode Linux was tried: it starved
         # the plant there. Both processes run at normal priority.)
         controller = subprocess.Popen(
-            [*py, "controller", *bus_args, "--config", str(work / "controller.json"), "--records", str(records_path),
+            [*py, "controller", *bus_args, "--config", str(work / "controller.toml"), "--records", str(records_path),
              "--weights", str(work / "weights.npz"), "--ticks", str(work / "controller.ticks")],
             stdout=ctl_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env)
         try:  # the recorder and this bookkeeping yield to the two real-time processes

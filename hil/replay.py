@@ -11,7 +11,9 @@ and the tick's clock is the timestamp of its first frame; the frames the control
 that tick are those recorded before it. Frames recorded long before the controller started are
 not fed (only the last 0.5 s before its first frame). With the live run's records
 (``controller.jsonl`` beside the log), each replayed step is compared with the live one: the
-same cell, burst change and burst length within 1 ms.
+same cell, burst change and burst length within 1 ms. The controller is configured as the live
+one was: ``controller.toml`` beside the log (or ``--config FILE``); a session recorded before the
+switch to TOML has a ``controller.json`` there instead, still read (with a warning).
 """
 
 from __future__ import annotations
@@ -167,7 +169,10 @@ def main_replay(args) -> int:
     from hil.controller_proc import read_records
 
     log = Path(args.log)
-    cfg_path = args.config or (log.parent / "controller.json" if (log.parent / "controller.json").exists() else None)
+    cfg_path = args.config
+    if cfg_path is None:  # the session's: controller.toml, else an old session's controller.json (with a warning)
+        candidates = (log.parent / "controller.toml", log.parent / "controller.json")
+        cfg_path = next((p for p in candidates if p.exists()), None)
     config = load_controller_config(cfg_path)
     tick_times = tick_counts = offset = None
     ticks_path = log.parent / "controller.ticks"

@@ -113,8 +113,8 @@ def test_without_a_weights_file_nothing_is_loaded_or_saved(tmp_path):
 
 
 def test_a_fault_without_a_signal_exits_1(tmp_path, capsys):
-    config = tmp_path / "c.json"
-    config.write_text('{"bringup_timeout_s": 0.1}')
+    config = tmp_path / "c.toml"
+    config.write_text("[controller]\nbringup_timeout_s = 0.1\n")
     bus = virtual_bus()
     assert main(["controller", "--interface", "virtual", "--channel", bus["channel"], "--config", str(config),
                  "--seconds", "0.4", "--weights", str(tmp_path / "w.npz")]) == 1
@@ -126,9 +126,9 @@ def test_a_fault_without_a_signal_exits_1(tmp_path, capsys):
 def test_a_signal_stops_the_daemon_with_exit_code_0_and_a_loadable_file(tmp_path, signum, fault):
     """Also after a safe stop (fault): the stop asked for is done in order, so the exit code is 0;
     the fault is in the final record."""
-    path, records, config = tmp_path / "w.npz", tmp_path / "r.jsonl", tmp_path / "c.json"
+    path, records, config = tmp_path / "w.npz", tmp_path / "r.jsonl", tmp_path / "c.toml"
     save_weights(path, W, WIDTH_M)
-    config.write_text(json.dumps({"bringup_timeout_s": 0.1 if fault else 5.0}))
+    config.write_text(f"[controller]\nbringup_timeout_s = {0.1 if fault else 5.0}\n")
     channel = f"weights-{uuid.uuid4().hex[:8]}"
     proc = subprocess.Popen([sys.executable, "-m", "hil.cli", "controller", "--interface", "virtual", "--channel",
                              channel, "--weights", str(path), "--records", str(records), "--config", str(config)],

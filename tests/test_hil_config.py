@@ -1,4 +1,5 @@
-"""The HIL processes' configuration: controller config from JSON, bus settings python-can's way."""
+"""The HIL processes' configuration: legacy JSON controller configs (replay of old sessions),
+bus settings python-can's way."""
 
 from __future__ import annotations
 
