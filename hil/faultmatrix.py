@@ -194,7 +194,8 @@ def _load_back(path: Path, expected: np.ndarray | None, n_cells: int, cell_width
 def run_case(case: FaultCase, trials: int, out_dir: str | Path, save_every_s: float = 10.0) -> dict[str, Any]:
     """Run one case; write its row to ``out_dir/<name>/row.json`` and return it."""
     from controller.weights import save_weights
-    from hil.learn import LearningRun, summarize
+    from hil.analysis import mistakes_101_150, window_success
+    from hil.learn import LearningRun
 
     out = Path(out_dir) / case.name
     out.mkdir(parents=True, exist_ok=True)
@@ -237,9 +238,8 @@ def run_case(case: FaultCase, trials: int, out_dir: str | Path, save_every_s: fl
             if stopped is None:
                 save(ls.t_s)
                 n = len(run.trials)
-                last = run.trials[max(0, n - 50):]
-                row["success_last_50"] = sum(t["success"] for t in last) / len(last) if n >= 50 else None
-                row["mistakes_101_150"] = summarize(run.trials, 0.0, 0.0)["mistakes_101_150"]
+                row["success_last_50"] = window_success(run.trials, n - 49, n) if n >= 50 else None
+                row["mistakes_101_150"] = mistakes_101_150(run.trials)
             else:
                 row["stopped_at_trial"], row["stop_cause"] = stopped
                 t_fault = loop.supervisor.fault_t_s
@@ -248,7 +248,7 @@ def run_case(case: FaultCase, trials: int, out_dir: str | Path, save_every_s: fl
                 t_idle = _run_until_idle(ls, watch)
                 row["safe_state_ms"] = None if t_idle is None else (t_idle - t_fault) * 1e3
             row["trials_completed"] = len(run.trials)
-            row["success_all"] = (sum(t["success"] for t in run.trials) / len(run.trials)) if run.trials else None
+            row["success_all"] = window_success(run.trials, 1, len(run.trials))
         fb = ls.faulty
         row["faults_applied"] = fb.counts() if fb is not None else {}
     finally:

@@ -122,3 +122,13 @@ class FakeSensorSource:
     def contacts(self) -> tuple[bool, bool]:
         self.contact_reads += 1
         return self.foot, self.shin
+
+
+def drain(bus) -> list:
+    """Every frame waiting on ``bus`` (a python-can bus), read without blocking."""
+    out = []
+    msg = bus.recv(0)
+    while msg is not None:
+        out.append(msg)
+        msg = bus.recv(0)
+    return out

@@ -14,6 +14,7 @@ from hil.hilfaults import FaultPlan, add_hil_fault_args, weights_state
 from hil.legwatch import Beat, safe_state
 from hil.mitm import ManInTheMiddle
 from protocol import AxisState
+from tests.fakes import drain
 
 
 def _pair():
@@ -36,15 +37,6 @@ def _frame(arb: int, payload: bytes = b"\x01\x02\x03\x04") -> can.Message:
     return can.Message(arbitration_id=arb, data=payload, is_extended_id=False)
 
 
-def _drain(bus: can.BusABC) -> list[can.Message]:
-    out = []
-    msg = bus.recv(0)
-    while msg is not None:
-        out.append(msg)
-        msg = bus.recv(0)
-    return out
-
-
 def test_frames_pass_both_ways_unchanged_without_faults(buses):
     ctl, ctl_node, leg, leg_node = buses
     node = ManInTheMiddle(ctl_node, leg_node)
@@ -52,7 +44,7 @@ def test_frames_pass_both_ways_unchanged_without_faults(buses):
         ctl.send(_frame(0x00C, bytes([i]) * 8))
         leg.send(_frame(0x009, bytes([i, 1]) * 4))
     node.pump(0.0)
-    to_leg, from_leg = _drain(leg), _drain(ctl)
+    to_leg, from_leg = drain(leg), drain(ctl)
     assert [bytes(m.data) for m in to_leg] == [bytes([i]) * 8 for i in range(20)]
     assert [bytes(m.data) for m in from_leg] == [bytes([i, 1]) * 4 for i in range(20)]
     s = node.summary()
@@ -69,7 +61,7 @@ def test_drop_rate_is_counted_and_seeded(buses):
         for i in range(500):
             ctl.send(_frame(0x00C))
         node.pump(0.0)
-        return len(_drain(leg)), node.summary()["to_leg"]
+        return len(drain(leg)), node.summary()["to_leg"]
 
     n1, c1 = run(3)
     n2, c2 = run(3)
@@ -83,12 +75,12 @@ def test_delayed_frames_leave_when_due(buses):
     node = ManInTheMiddle(ctl_node, leg_node, from_leg=FaultSpec(delay=1.0, delay_s=0.004))
     leg.send(_frame(0x001))
     node.pump(10.0)
-    assert _drain(ctl) == []
+    assert drain(ctl) == []
     assert node.summary()["from_leg"]["in_flight"] == 1
     node.pump(10.003)
-    assert _drain(ctl) == []
+    assert drain(ctl) == []
     node.pump(10.0041)
-    assert len(_drain(ctl)) == 1 and node.summary()["from_leg"]["delay"] == 1
+    assert len(drain(ctl)) == 1 and node.summary()["from_leg"]["delay"] == 1
 
 
 def test_silencing_drops_only_that_nodes_frames_to_the_controller(buses):
@@ -96,14 +88,14 @@ def test_silencing_drops_only_that_nodes_frames_to_the_controller(buses):
     node = ManInTheMiddle(ctl_node, leg_node, silence_node=0)
     leg.send(_frame(0x001))  # hip heartbeat, before the silence
     node.pump(0.0)
-    assert len(_drain(ctl)) == 1
+    assert len(drain(ctl)) == 1
     node.start_silence(1.0)
     for arb in (0x001, 0x009, 0x021, 0x029, 0x208):  # hip x2, knee x2, sensor board
         leg.send(_frame(arb))
     ctl.send(_frame(0x00C))  # the controller's command to the hip still gets through
     node.pump(1.0)
-    assert sorted(m.arbitration_id for m in _drain(ctl)) == [0x021, 0x029, 0x208]
-    assert [m.arbitration_id for m in _drain(leg)] == [0x00C]
+    assert sorted(m.arbitration_id for m in drain(ctl)) == [0x021, 0x029, 0x208]
+    assert [m.arbitration_id for m in drain(leg)] == [0x00C]
     s = node.summary()
     assert s["from_leg"]["silenced"] == 2 and s["silence"]["node"] == 0 and s["silence"]["started_mono"] == 1.0
 
@@ -115,7 +107,7 @@ def test_corrupted_frames_reach_the_other_side_changed(buses):
     for _ in range(50):
         ctl.send(_frame(0x00C, payload))
     node.pump(0.0)
-    got = _drain(leg)
+    got = drain(leg)
     assert len(got) == 50 and all(bytes(m.data) != payload for m in got)
     assert node.summary()["to_leg"]["corrupt"] == 50
 

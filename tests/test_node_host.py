@@ -14,7 +14,7 @@ from firmware_sim.odrive_axis import DriverConfig, SimOdriveAxis
 from firmware_sim.sensor_board import SensorBoard, SensorBoardConfig
 from protocol.contract import BusContract, arbitration_id
 from protocol.odrive import AxisState, Cmd
-from tests.fakes import FakeJointPlant, FakeSensorSource
+from tests.fakes import FakeJointPlant, FakeSensorSource, drain
 
 C = BusContract.load()
 DT = 0.001
@@ -47,15 +47,6 @@ def send(bus, node, name, *values):
 
 def send_rtr(bus, arb_id, dlc):
     bus.send(can.Message(arbitration_id=arb_id, is_remote_frame=True, dlc=dlc, is_extended_id=False))
-
-
-def drain(bus):
-    out = []
-    msg = bus.recv(0)
-    while msg is not None:
-        out.append(msg)
-        msg = bus.recv(0)
-    return out
 
 
 def test_rtr_request_is_answered_over_the_bus(buses):
