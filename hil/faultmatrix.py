@@ -41,7 +41,8 @@ import numpy as np
 from controller.config import ControllerConfig
 from controller.supervisor import Phase
 from hil.faults import FAULT_KINDS, FaultSpec
-from protocol import AxisState, BusContract
+from hil.legwatch import Beat, safe_state
+from protocol import BusContract
 
 log = logging.getLogger(__name__)
 
@@ -151,30 +152,27 @@ class CommandAudit:
 
 
 class HeartbeatWatch:
-    """A third node on the lockstep's bus that notes when each axis's heartbeat first says IDLE."""
+    """A third node on the lockstep's bus that keeps the axes' heartbeats once ``armed``, as
+    :class:`hil.legwatch.Beat` on the simulated clock, for :func:`hil.legwatch.safe_state` (the
+    HIL watcher's computation). Before it is armed it only drains its queue."""
 
     def __init__(self, bus: can.BusABC, node_ids: dict[str, int]) -> None:
         contract = BusContract.load()
         self.bus = bus
         self._unpack = contract.codec("Heartbeat").unpack
         self._ids = {contract.odrive_id(n, "Heartbeat"): name for name, n in node_ids.items()}
-        self.idle_t_s: dict[str, float] = {}
+        self.axes = list(node_ids)
+        self.beats: list[Beat] = []
         self.armed = False
 
     def poll(self, now_s: float) -> None:
         msg = self.bus.recv(timeout=0.0)
         while msg is not None:
             name = self._ids.get(msg.arbitration_id)
-            if name is not None and self.armed and name not in self.idle_t_s:
-                if int(self._unpack(msg.data)[1]) == AxisState.IDLE:
-                    self.idle_t_s[name] = now_s
+            if name is not None and self.armed:
+                error, state = self._unpack(msg.data)[:2]
+                self.beats.append(Beat(now_s, name, int(state), int(error)))
             msg = self.bus.recv(timeout=0.0)
-
-
-def _learn_config(trials: int, seed: int):
-    from hil.learn import LearnConfig
-
-    return LearnConfig(trials=trials, seed=seed)
 
 
 def _load_back(path: Path, expected: np.ndarray | None, n_cells: int, cell_width_m: float) -> bool:
@@ -195,13 +193,13 @@ def run_case(case: FaultCase, trials: int, out_dir: str | Path, save_every_s: fl
     """Run one case; write its row to ``out_dir/<name>/row.json`` and return it."""
     from controller.weights import save_weights
     from hil.analysis import mistakes_101_150, window_success
-    from hil.learn import LearningRun
+    from hil.learn import LearnConfig, LearningRun
 
     out = Path(out_dir) / case.name
     out.mkdir(parents=True, exist_ok=True)
     weights_path = out / "weights.npz"
     weights_path.unlink(missing_ok=True)
-    config = _learn_config(trials if case.fault not in EVENTS else 1, case.seed)
+    config = LearnConfig(trials=trials if case.fault not in EVENTS else 1, seed=case.seed)
     run = LearningRun(config)
     ls, loop = run.ls, run.ls.loop
     ctl = config.controller
@@ -316,14 +314,14 @@ def _event(case: FaultCase, run, watch: HeartbeatWatch, save, save_every_s: floa
     for _ in range(250):  # a little longer, for the last heartbeats to be seen
         ls.step()
         watch.poll(ls.t_s)
-    beats = watch.idle_t_s
+    beats = safe_state(watch.beats, watch.axes, t0)
     extra = {}
     if case.fault == "bus_off":
         extra = {"bus_events": dict(ls.loop.io.bus_events), "still_walking": ls.loop.phase is Phase.WALK}
     return {**extra,
         "safe_state_ms": None if t_idle is None else (t_idle - t0) * 1e3,
-        "heartbeat_idle_ms": (max(beats.values()) - t0) * 1e3 if len(beats) == len(ls.loop.axes) else None,
-        "axes_idle_ms_by_heartbeat": {k: (v - t0) * 1e3 for k, v in beats.items()},
+        "heartbeat_idle_ms": beats["safe_state_ms"],
+        "axes_idle_ms_by_heartbeat": {k: v for k, v in beats["axes_idle_ms"].items() if v is not None},
         "controller_fault_ms": None if math.isnan(ls.loop.supervisor.fault_t_s) else
         (ls.loop.supervisor.fault_t_s - t0) * 1e3,
         "driver_errors": {n: hex(int(a.errors | a.disarm_reason)) for n, a in ls.leg.axes.items()},

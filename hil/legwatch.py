@@ -29,7 +29,8 @@ HEARTBEAT_CMD = 0x01
 
 @dataclass(frozen=True)
 class Beat:
-    """One Heartbeat as received: kernel timestamp [s, CLOCK_REALTIME], axis, state, error bits."""
+    """One Heartbeat as received: its time [s; for :class:`HeartbeatWatcher` the kernel timestamp,
+    CLOCK_REALTIME; the lockstep fault matrix uses the simulated clock], axis, state, error bits."""
 
     t_unix: float
     axis: str
@@ -95,7 +96,7 @@ class HeartbeatWatcher(threading.Thread):
 
 
 def safe_state(beats: list[Beat], axes: list[str], t_event_unix: float) -> dict[str, Any]:
-    """When every axis's Heartbeat first reported IDLE after ``t_event_unix`` [s, CLOCK_REALTIME].
+    """When every axis's Heartbeat first reported IDLE after ``t_event_unix`` [s, on the beats' clock].
 
     Returns ``safe_state_ms`` (the latest of the axes' first IDLE heartbeats, from the event
     [ms]; None if some axis never reported IDLE), ``axes_idle_ms`` (per axis, None: never),
