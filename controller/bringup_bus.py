@@ -33,7 +33,6 @@ log = logging.getLogger(__name__)
 Clock = Callable[[], float]
 Sleep = Callable[[float], None]
 
-_MASTER = "Controller"  # the DBC's name for the master node
 _MAX_DRAIN = 10_000  # frames read in one drain at most (a flooding bus cannot hold us forever)
 
 
@@ -99,7 +98,7 @@ class BusWatch:
         self._hb = contract.codec("Heartbeat")
         self._enc = contract.codec("Get_Encoder_Estimates")
         self._sb_hb = contract.codec("SB_Heartbeat")
-        self._master_cmds = frozenset(c.cmd_id for c in contract.odrive.values() if _MASTER in c.message.senders)
+        self._master_cmds = contract.odrive_master_cmds
         self.frames = 0
         self.frames_taken = 0  # standard-id frames taken so far: orders replies after requests
         self.error_frames = 0

@@ -86,7 +86,6 @@ RX_DROP_REASONS = ("unknown", "malformed", "unexpected_sender", "invalid", "hand
 TX_DROP_REASONS = ("tx_error", "tx_while_down", "refused_outside_limits")
 """``dropped`` reasons of frames handed to :meth:`BusIO.send` and not sent."""
 
-_CONTROLLER = "Controller"  # the DBC's name for the master node
 
 
 @dataclass(frozen=True)
@@ -153,7 +152,7 @@ class BusIO:
             self._listen(axis.heartbeat_id, contract.codec("Heartbeat"), axis.on_heartbeat)
             self._listen(axis.encoder_id, contract.codec("Get_Encoder_Estimates"), axis.on_encoder)
             for codec in contract.odrive.values():
-                if _CONTROLLER in codec.message.senders:
+                if codec.name in contract.master_messages:
                     self._tx_table[arbitration_id(axis.config.node_id, codec.cmd_id)] = (codec.name, None, None)
             lo, hi = axis.pos_bounds_rev
             self._tx_table[axis.pos_id] = ("Set_Input_Pos", lo, hi)
@@ -163,7 +162,7 @@ class BusIO:
             codec = contract.codec(name)
             self._listen(arbitration_id(sb, codec.cmd_id), codec, handler)
         for codec in contract.sensor_board.values():
-            if _CONTROLLER in codec.message.senders:
+            if codec.name in contract.master_messages:
                 self._tx_table[arbitration_id(sb, codec.cmd_id)] = (codec.name, None, None)
         self._pos_len, self._unpack_pos = self._input_pos_reader(contract)
 

@@ -51,6 +51,7 @@ import can
 import numpy as np
 
 from hil.busload import bus_load_from_log
+from protocol import BusContract
 from hil.controller_proc import phases_seen, read_records
 
 if TYPE_CHECKING:
@@ -58,7 +59,7 @@ if TYPE_CHECKING:
     from hil.hilfaults import FaultPlan, FaultSession
     from hil.learn import LearnConfig
 
-CONTROLLER_CMDS = frozenset({2, 7, 11, 12, 13, 14, 15, 22, 24, 25, 26, 27})  # DBC sender: Controller
+CONTROLLER_CMDS = BusContract.load().odrive_master_cmds  # the DBC's messages sent by the Controller
 SET_INPUT_POS, GET_ENCODER_ESTIMATES = 12, 9
 _F32 = struct.Struct("<f")  # Set_Input_Pos's Input_Pos [rev]
 SENSOR_BOARD_NODE = 16

@@ -32,7 +32,7 @@ from controller.config import ControllerConfig
 from controller.loop import ControlLoop
 from protocol.contract import DBC_PATH, BusContract
 
-CONTROLLER_CMDS = frozenset({2, 7, 11, 12, 13, 14, 15, 22, 24, 25, 26, 27})
+CONTROLLER_CMDS = BusContract.load().odrive_master_cmds  # the DBC's messages sent by the Controller
 SET_INPUT_POS = 12
 PRE_START_S = 0.5
 

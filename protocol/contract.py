@@ -21,6 +21,7 @@ from pathlib import Path
 import cantools
 
 SENSOR_BOARD_NODE_ID = 16
+MASTER_NODE = "Controller"  # the DBC's name for the bus master: the messages only it sends
 NODE_ID_BITS = 6
 CMD_ID_MASK = 0x1F
 MAX_NODE_ID = 0x3F
@@ -174,6 +175,9 @@ class BusContract:
         self.odrive: dict[int, MessageCodec] = {}
         self.sensor_board: dict[int, MessageCodec] = {}
         self.by_name: dict[str, MessageCodec] = {}
+        # What only the master sends (commands and Get_* requests' ids as data frames): hearing
+        # one of these from someone else means another master is on the bus.
+        self.master_messages: frozenset[str] = frozenset(m.name for m in db.messages if MASTER_NODE in m.senders)
         for message in db.messages:
             codec = MessageCodec(message)
             self.by_name[message.name] = codec
@@ -184,6 +188,11 @@ class BusContract:
                 self.sensor_board[codec.cmd_id] = codec
             else:
                 raise ValueError(f"DBC message {message.name} at {message.frame_id:#x} belongs to no known node")
+
+    @property
+    def odrive_master_cmds(self) -> frozenset[int]:
+        """The CANSimple command ids (low 5 bits) of the messages only the master sends."""
+        return frozenset(c.cmd_id for c in self.odrive.values() if c.name in self.master_messages)
 
     @classmethod
     @functools.lru_cache(maxsize=4)

@@ -117,3 +117,10 @@ def test_frame_bits_bounds_and_stuffing():
     assert frame_bits(0x09, bytes(8), remote=True) < frame_bits(0x09, bytes(8))
     with pytest.raises(ValueError):
         frame_bits(0x800, b"")
+
+
+def test_the_contract_knows_what_only_the_master_sends():
+    c = BusContract.load()
+    assert c.odrive_master_cmds == frozenset({2, 7, 11, 12, 13, 14, 15, 22, 24, 25, 26, 27})
+    assert {"Set_Input_Pos", "Set_Axis_State", "Estop", "Clear_Errors"} <= c.master_messages
+    assert not c.master_messages & {"Heartbeat", "Get_Encoder_Estimates", "SB_Range", "SB_Heartbeat"}
