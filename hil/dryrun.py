@@ -131,7 +131,7 @@ def platform_config(path: Path, folder: Path, channel: str) -> tuple[Path, list[
     (:data:`hil.hilrun.UML_SILENCE_PERIODS`). Checks that its bus is SocketCAN ``channel``.
     Returns the file and what was changed."""
     from controller.settings import load_config, write_config
-    from hil.hilrun import UML_SILENCE_PERIODS
+    from hil.hilrun import UML_SILENCE_PERIODS, uml_patient
     from hil.uml import in_uml
 
     config = load_config(path)
@@ -141,8 +141,7 @@ def platform_config(path: Path, folder: Path, channel: str) -> tuple[Path, list[
     ctl = config.controller
     if not in_uml() or ctl.silence_periods >= UML_SILENCE_PERIODS:
         return path, []
-    ctl = dataclasses.replace(ctl, silence_periods=UML_SILENCE_PERIODS,
-                              stale_heartbeat_periods=max(UML_SILENCE_PERIODS, ctl.stale_heartbeat_periods))
+    ctl = uml_patient(ctl)
     copy = folder / f"{path.stem}-uml.toml"
     write_config(copy, dataclasses.replace(config, controller=ctl),
                  header=f"{path} as the dry run runs it inside User-Mode Linux (hil.dryrun)")

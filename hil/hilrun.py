@@ -301,10 +301,14 @@ def session_controller_config(config: LearnConfig) -> ControllerConfig:
     stop the leg; the controller waits longer before calling a node lost.
     """
     ctl_config = config.lockstep().controller
-    if _in_uml():
-        ctl_config = dataclasses.replace(ctl_config, silence_periods=UML_SILENCE_PERIODS,
-                                         stale_heartbeat_periods=max(UML_SILENCE_PERIODS, ctl_config.stale_heartbeat_periods))
-    return ctl_config
+    return uml_patient(ctl_config) if _in_uml() else ctl_config
+
+
+def uml_patient(ctl: ControllerConfig) -> ControllerConfig:
+    """``ctl`` waiting at least :data:`UML_SILENCE_PERIODS` heartbeat periods (and as long for a
+    stale heartbeat) before it calls a node lost: how the controller runs inside User-Mode Linux."""
+    return dataclasses.replace(ctl, silence_periods=max(UML_SILENCE_PERIODS, ctl.silence_periods),
+                               stale_heartbeat_periods=max(UML_SILENCE_PERIODS, ctl.stale_heartbeat_periods))
 
 
 def session_envs() -> tuple[dict[str, str], dict[str, str]]:
