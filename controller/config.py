@@ -5,11 +5,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from controller.encoder import RangeEncoderConfig
-from controller.height import HeightEstimatorConfig
-from controller.learner import LearnerConfig
-from controller.range_filter import RangeFilterConfig
-from controller.reflexes import ReflexConfig
+from controller.stepping.encoder import RangeEncoderConfig
+from controller.stepping.height import HeightEstimatorConfig
+from controller.stepping.learner import LearnerConfig
+from controller.stepping.range_filter import RangeFilterConfig
+from controller.stepping.reflexes import ReflexConfig
 
 
 def _check(name: str, value: float, lo: float, hi: float, unit: str) -> None:

@@ -20,20 +20,20 @@ from dataclasses import dataclass, field
 
 import can
 
-from controller.axis import AxisLink
-from controller.bus_io import BusIO
+from controller.io.axis import AxisLink
+from controller.io.bus import BusIO
 from controller.config import ControllerConfig
-from controller.cpg import CpgOutput, RingOscillator
-from controller.gait import FootTrajectory
-from controller.height import HeightEstimator
-from controller.encoder import RangeEncoder
-from controller.kinematics import forward, inverse
-from controller.learner import AdaptivePremotor
-from controller.muscle import LowPass
-from controller.premotor import Premotor
-from controller.range_filter import RangeFilter
-from controller.reflexes import ContactReflexes, Reflex, lift_amplitude
-from controller.sensors import SensorLink
+from controller.motion.cpg import CpgOutput, RingOscillator
+from controller.motion.gait import FootTrajectory
+from controller.stepping.height import HeightEstimator
+from controller.stepping.encoder import RangeEncoder
+from controller.motion.kinematics import forward, inverse
+from controller.stepping.learner import AdaptivePremotor
+from controller.motion.muscle import LowPass
+from controller.stepping.premotor import Premotor
+from controller.stepping.range_filter import RangeFilter
+from controller.stepping.reflexes import ContactReflexes, Reflex, lift_amplitude
+from controller.io.sensors import SensorLink
 from controller.supervisor import Phase, Supervisor
 from protocol import AxisState, BusContract, ControlMode, InputMode
 
@@ -52,7 +52,7 @@ class StepRecord:
         modulation_s: the gated cell's weight, the burst change the gate asked for [s].
         amplitude: the CPG amplitude for this cycle (above 1: the lift reflex fired).
         context: the obstacle-height context passed to the premotor at the gate (None: unknown
-            or no target in view; see :mod:`controller.height`).
+            or no target in view; see :mod:`controller.stepping.height`).
     """
 
     index: int

@@ -25,8 +25,8 @@ import enum
 import logging
 import math
 
-from controller.axis import AxisLink
-from controller.sensors import SensorLink
+from controller.io.axis import AxisLink
+from controller.io.sensors import SensorLink
 
 log = logging.getLogger(__name__)
 

@@ -29,10 +29,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from controller.axis import AxisLink
-from controller.bus_io import RX_DROP_REASONS, BusIO
+from controller.io.axis import AxisLink
+from controller.io.bus import RX_DROP_REASONS, BusIO
 from controller.config import default_axes
-from controller.sensors import SensorLink
+from controller.io.sensors import SensorLink
 from firmware_sim.motor import MotorJoint, MotorParams, Transmission
 from firmware_sim.node_host import NodeHost
 from firmware_sim.odrive_axis import DriverConfig, SimOdriveAxis

@@ -1,0 +1,1 @@
+"""controller.bringup: (to be described)."""

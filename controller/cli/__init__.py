@@ -1,0 +1,1 @@
+"""controller.cli: (to be described)."""

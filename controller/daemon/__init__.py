@@ -1,0 +1,1 @@
+"""controller.daemon: (to be described)."""

@@ -1,0 +1,1 @@
+"""controller.io: (to be described)."""

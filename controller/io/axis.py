@@ -1,0 +1,243 @@
+"""One ODrive axis as the controller sees it: its feedback and the frames that command it.
+
+Feedback arrives from Heartbeat and Get_Encoder_Estimates frames and is converted to joint
+units through the axis's gear ratio, direction and zero offset. A feedback frame is applied
+whole or not at all: the handlers return False (the frame is counted ``invalid`` and dropped by
+:class:`controller.io.bus.BusIO`) for a heartbeat whose Axis_State is not an ODrive state, whose
+Axis_Error has bits firmware 0.6 does not define, or that reports an error in closed loop (ODrive
+disarms on any error), and for encoder estimates that are NaN, infinite, faster than
+``FeedbackLimits.max_vel_rev_s``, further than ``FeedbackLimits.pos_slack_rad`` outside the
+joint's range, or that jump from the last accepted reading faster than
+``FeedbackLimits.max_joint_speed_rad_s`` (no joint of the rig can do that: a corrupted frame).
+
+Every position command passes through :meth:`AxisLink.pos_frame`, which clamps the target into
+``[min_rad, max_rad]`` (a NaN target holds the last one) and then clamps the motor position it
+encodes into ``pos_bounds_rev``: the float32 values whose joint angle, converted back with the
+axis's :class:`~controller.config.AxisConfig`, lies inside ``[min_rad, max_rad]``. Rounding to
+the frame's float32 can therefore never carry a target past a limit: no code path can put a
+joint target outside the configured limits on the bus (``BusIO.send`` checks it again).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+import can
+
+from controller.config import AxisConfig
+from protocol import AxisError, AxisState, BusContract, ControlMode, InputMode, data_frame
+
+_F32 = struct.Struct("<f")
+_U32 = struct.Struct("<I")
+_F32_MAX = 3.4028234663852886e38
+
+
+_KNOWN_ERRORS = int(sum(e.value for e in AxisError))  # every Axis_Error bit firmware 0.6 defines
+
+
+@dataclass(frozen=True)
+class FeedbackLimits:
+    """What a plausible encoder reading is (anything else is a corrupted frame, dropped).
+
+    Attributes:
+        max_vel_rev_s: largest believable abs(Vel_Estimate) [rev/s, motor side]; default 100.0
+            (a KV 100 motor on 24 V turns at most about 40 rev/s unloaded; the drivers limit
+            the velocity setpoint to 20 rev/s).
+        pos_slack_rad: how far outside ``[min_rad, max_rad]`` a reading may lie [rad, joint
+            side]; default 0.5 (the rig's hard stops are 0.05 rad outside the controller's
+            limits; the drivers trip 0.02 rev, 0.02 rad, beyond them).
+        max_joint_speed_rad_s: a reading further from the last accepted one than this speed
+            times the time between them (at least ``min_jump_dt_s``) plus ``jump_slack_rad``
+            is a jump no joint makes [rad/s]; default 40 (measured: at most 13.6 rad/s, knee,
+            over 12 trials with 12 cm obstacles).
+        min_jump_dt_s: the shortest time the jump bound assumes between two readings [s];
+            default 0.004 (two encoder periods: frames read in one tick share its clock).
+        jump_slack_rad: added to the jump bound [rad]; default 0.05.
+    """
+
+    max_vel_rev_s: float = 100.0
+    pos_slack_rad: float = 0.5
+    max_joint_speed_rad_s: float = 40.0
+    min_jump_dt_s: float = 0.004
+    jump_slack_rad: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("max_vel_rev_s", "pos_slack_rad", "max_joint_speed_rad_s", "min_jump_dt_s", "jump_slack_rad"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
+                raise ValueError(f"FeedbackLimits.{name} must be finite and > 0, got {value!r}")
+
+
+def _f32(x: float) -> float:
+    """``x`` rounded to the nearest float32 (saturated at the float32 range)."""
+    return _F32.unpack(_F32.pack(min(_F32_MAX, max(-_F32_MAX, x))))[0]
+
+
+def _f32_step(x: float, up: bool) -> float:
+    """The next float32 above (``up``) or below ``x`` (itself a finite float32)."""
+    if x == 0.0:
+        tiny = _F32.unpack(_U32.pack(1))[0]
+        return tiny if up else -tiny
+    bits = _U32.unpack(_F32.pack(x))[0]
+    bits += 1 if (x > 0.0) == up else -1
+    return _F32.unpack(_U32.pack(bits))[0]
+
+
+def float32_target_bounds_rev(config: AxisConfig) -> tuple[float, float]:
+    """The smallest and largest float32 motor positions [rev] whose joint angle, as
+    ``config.rev_to_rad`` computes it, lies in ``[config.min_rad, config.max_rad]``."""
+    a, b = config.rad_to_rev(config.min_rad), config.rad_to_rev(config.max_rad)
+    lo, hi = _f32(min(a, b)), _f32(max(a, b))
+
+    def inside(rev: float) -> bool:
+        return config.min_rad <= config.rev_to_rad(rev) <= config.max_rad
+
+    for _ in range(64):  # rounding to float32 moves a bound by half a step: a few steps at most
+        if inside(lo) or lo > hi:
+            break
+        lo = _f32_step(lo, up=True)
+    for _ in range(64):
+        if inside(hi) or hi < lo:
+            break
+        hi = _f32_step(hi, up=False)
+    if not (lo <= hi and inside(lo) and inside(hi)):
+        raise ValueError(f"axes.{config.name}: the range [{config.min_rad}, {config.max_rad}] rad holds no "
+                         "float32 motor position")
+    return lo, hi
+
+
+class AxisLink:
+    def __init__(self, config: AxisConfig, contract: BusContract,
+                 feedback_limits: FeedbackLimits = FeedbackLimits()) -> None:
+        self.config = config
+        self.feedback_limits = feedback_limits
+        self.name = config.name
+        node = config.node_id
+        self._pos = contract.codec("Set_Input_Pos")
+        self._state = contract.codec("Set_Axis_State")
+        self._mode = contract.codec("Set_Controller_Mode")
+        self._clear = contract.codec("Clear_Errors")
+        self._estop = contract.codec("Estop")
+        self._limits = contract.codec("Set_Limits")
+        self.pos_id = contract.odrive_id(node, "Set_Input_Pos")
+        self.state_id = contract.odrive_id(node, "Set_Axis_State")
+        self.mode_id = contract.odrive_id(node, "Set_Controller_Mode")
+        self.clear_id = contract.odrive_id(node, "Clear_Errors")
+        self.estop_id = contract.odrive_id(node, "Estop")
+        self.limits_id = contract.odrive_id(node, "Set_Limits")
+        self.heartbeat_id = contract.odrive_id(node, "Heartbeat")
+        self.encoder_id = contract.odrive_id(node, "Get_Encoder_Estimates")
+        # joint <-> motor unit factors, precomputed for the 500 Hz path
+        self._rev_per_rad = config.direction * config.gear_ratio / (2.0 * math.pi)
+        self._rad_per_rev = 1.0 / self._rev_per_rad
+        self._offset_rev = config.zero_offset_rev
+        self.pos_bounds_rev = float32_target_bounds_rev(config)
+        self._vel_max_rev_s = feedback_limits.max_vel_rev_s
+        self._feedback = feedback_limits
+        self._pos_lo_rad = config.min_rad - feedback_limits.pos_slack_rad
+        self._pos_hi_rad = config.max_rad + feedback_limits.pos_slack_rad
+        self.reset_feedback()
+        self.clamped_targets = 0
+        self.last_target_rad = math.nan
+
+    def reset_feedback(self) -> None:
+        self.pos_rad = math.nan
+        self.vel_rad_s = math.nan
+        self.encoder_t_s = -math.inf
+        self.state = AxisState.UNDEFINED
+        self.error = 0
+        self.procedure_result = 0
+        self.heartbeat_t_s = -math.inf
+
+    # -- feedback ------------------------------------------------------------------------
+    def on_heartbeat(self, values: tuple, now_s: float) -> bool:
+        """Heartbeat: False (nothing applied) when Axis_State is not an ODrive axis state, Axis_Error
+        has bits firmware 0.6 does not define, or the axis reports an error in closed loop."""
+        error, state, result, _done = values
+        try:
+            state = AxisState(int(state))
+        except ValueError:
+            return False
+        error = int(error)
+        if error & ~_KNOWN_ERRORS or (error and state is AxisState.CLOSED_LOOP_CONTROL):
+            # Bits ODrive 0.6 does not define, or an error while in closed loop (ODrive disarms on
+            # any error and clears Disarm_Reason when it arms): a corrupted heartbeat.
+            return False
+        self.error = error
+        self.state = state
+        self.procedure_result = int(result)
+        self.heartbeat_t_s = now_s
+        return True
+
+    def on_encoder(self, values: tuple, now_s: float) -> bool:
+        """Get_Encoder_Estimates: False (nothing applied) for an implausible reading (NaN,
+        infinite, too fast, or too far outside the joint's range; see :class:`FeedbackLimits`)."""
+        pos_rev, vel_rev_s = values
+        vmax = self._vel_max_rev_s
+        if not -vmax <= vel_rev_s <= vmax:  # False for NaN too
+            return False
+        pos_rad = (pos_rev - self._offset_rev) * self._rad_per_rev
+        if not self._pos_lo_rad <= pos_rad <= self._pos_hi_rad:
+            return False
+        limits = self._feedback
+        last_s = self.encoder_t_s
+        if last_s != -math.inf and abs(pos_rad - self.pos_rad) > (
+                limits.max_joint_speed_rad_s * max(now_s - last_s, limits.min_jump_dt_s) + limits.jump_slack_rad):
+            return False  # a jump no joint makes: a corrupted reading
+        self.pos_rad = pos_rad
+        self.vel_rad_s = vel_rev_s * self._rad_per_rev
+        self.encoder_t_s = now_s
+        return True
+
+    @property
+    def closed_loop(self) -> bool:
+        return self.state == AxisState.CLOSED_LOOP_CONTROL and self.error == 0
+
+    # -- commands ------------------------------------------------------------------------
+    def clamp(self, q_rad: float) -> float:
+        c = self.config
+        if c.min_rad <= q_rad <= c.max_rad:
+            return q_rad
+        if not math.isfinite(q_rad):
+            # a NaN target is never sent: hold the last target (or the measured position)
+            self.clamped_targets += 1
+            fallback = self.last_target_rad if math.isfinite(self.last_target_rad) else self.pos_rad
+            return min(c.max_rad, max(c.min_rad, fallback if math.isfinite(fallback) else 0.0))
+        if q_rad < c.min_rad or q_rad > c.max_rad:
+            self.clamped_targets += 1
+            return c.min_rad if q_rad < c.min_rad else c.max_rad
+        return q_rad
+
+    def pos_frame(self, q_rad: float, qd_rad_s: float = 0.0) -> can.Message:
+        """Set_Input_Pos for joint target ``q_rad`` [rad] (clamped, see :meth:`clamp`) with
+        velocity feed-forward ``qd_rad_s`` [rad/s] (0 if not finite, clamped to the signal's
+        +-32 rev/s). The encoded position always lies in ``pos_bounds_rev``."""
+        q = self.clamp(q_rad)
+        self.last_target_rad = q
+        vel_ff = qd_rad_s * self._rev_per_rad if math.isfinite(qd_rad_s) else 0.0
+        vel_ff = 32.0 if vel_ff > 32.0 else (-32.0 if vel_ff < -32.0 else vel_ff)
+        rev = self._offset_rev + q * self._rev_per_rad
+        lo, hi = self.pos_bounds_rev
+        rev = lo if rev < lo else (hi if rev > hi else rev)
+        data = self._pos.pack(rev, vel_ff, 0.0)
+        return data_frame(self.pos_id, data)
+
+    def state_frame(self, state: AxisState) -> can.Message:
+        return data_frame(self.state_id, self._state.pack(int(state)))
+
+    def mode_frame(self, control: ControlMode, input_mode: InputMode) -> can.Message:
+        data = self._mode.pack(int(control), int(input_mode))
+        return data_frame(self.mode_id, data)
+
+    def limits_frame(self) -> can.Message:
+        """Set_Limits: the configured velocity limit [rev/s, motor side] and current limit [A]."""
+        c = self.config
+        return data_frame(self.limits_id, self._limits.pack(c.vel_limit_rev_s, c.current_limit_a))
+
+    def clear_errors_frame(self) -> can.Message:
+        return data_frame(self.clear_id, self._clear.pack(0))
+
+    def estop_frame(self) -> can.Message:
+        return data_frame(self.estop_id, b"")

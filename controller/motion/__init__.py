@@ -1,0 +1,1 @@
+"""controller.motion: (to be described)."""

@@ -1,0 +1,1 @@
+"""controller.settings: (to be described)."""

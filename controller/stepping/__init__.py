@@ -1,0 +1,1 @@
+"""controller.stepping: (to be described)."""

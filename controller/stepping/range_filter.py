@@ -1,0 +1,119 @@
+"""The range filter: a Kalman filter (filterpy) on the sensor board's range readings.
+
+State: distance to the target ahead [m] and its rate [m/s], a constant-velocity model. The
+filter predicts at the controller's rate and is corrected by each new valid reading (50 Hz).
+A dropout (``Range_Valid = 0``) means predict only. A reading is rejected and counted when it is
+NaN, outside ``[0, max_range_m]``, stale (older than the last one used), or an outlier (its
+innovation beyond ``gate_sigma`` standard deviations once the filter has converged; a run of
+``reacquire_after`` consecutive outliers re-initialises the filter on the new target instead:
+that is a new obstacle coming into view, not noise). Out-of-sequence frames never get here:
+:mod:`controller.io.sensors` drops them.
+
+With no valid reading for ``stale_s`` the estimate is withdrawn (``None``): no target in view.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+
+@dataclass(frozen=True)
+class RangeFilterConfig:
+    """Attributes:
+    noise_m: standard deviation of one reading [m]; default 0.02.
+    accel_noise_m_s2: white-acceleration process noise [m/s^2]; default 0.3 (the sensor rides
+        the carriage, which runs at constant speed).
+    max_range_m: readings beyond this are out of range [m]; default 3.0.
+    stale_s: with no valid reading for this long the estimate is withdrawn [s]; default 0.25.
+    gate_sigma: innovation gate for outliers [standard deviations]; default 5.0.
+    reacquire_after: consecutive outliers that mean a new target; default 3.
+    """
+
+    noise_m: float = 0.02
+    accel_noise_m_s2: float = 0.3
+    max_range_m: float = 3.0
+    stale_s: float = 0.25
+    gate_sigma: float = 5.0
+    reacquire_after: int = 3
+
+
+class RangeFilter:
+    def __init__(self, config: RangeFilterConfig = RangeFilterConfig()) -> None:
+        self.config = config
+        self.kf = KalmanFilter(dim_x=2, dim_z=1)
+        self.kf.H = np.array([[1.0, 0.0]])
+        self.kf.R = np.array([[config.noise_m**2]])
+        self.rejected = {"nan": 0, "out_of_range": 0, "stale": 0, "outlier": 0}
+        self.used = 0
+        self.dropouts = 0
+        self._t_s = math.nan
+        self._last_reading_t_s = -math.inf
+        self._last_valid_t_s = -math.inf
+        self._outliers_in_a_row = 0
+        self.active = False
+
+    def _init(self, z: float) -> None:
+        self.kf.x = np.array([[z], [0.0]])
+        self.kf.P = np.diag([self.config.noise_m**2, 1.0])
+        self.active = True
+        self._outliers_in_a_row = 0
+
+    def predict(self, now_s: float) -> None:
+        """Advance the state to ``now_s`` (called every tick)."""
+        if not math.isnan(self._t_s) and self.active:
+            dt = now_s - self._t_s
+            if dt > 0.0:
+                q = self.config.accel_noise_m_s2**2
+                self.kf.F = np.array([[1.0, dt], [0.0, 1.0]])
+                self.kf.Q = q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+                self.kf.predict()
+        self._t_s = now_s
+        if self.active and now_s - self._last_valid_t_s > self.config.stale_s:
+            self.active = False
+
+    def reading(self, range_m: float, valid: bool, reading_t_s: float) -> bool:
+        """Offer one sensor sample (taken at ``reading_t_s``); True if it corrected the estimate."""
+        if reading_t_s <= self._last_reading_t_s:
+            self.rejected["stale"] += 1
+            return False
+        self._last_reading_t_s = reading_t_s
+        if not valid:
+            self.dropouts += 1
+            return False
+        if not math.isfinite(range_m):
+            self.rejected["nan"] += 1
+            return False
+        if not 0.0 <= range_m <= self.config.max_range_m:
+            self.rejected["out_of_range"] += 1
+            return False
+        self._last_valid_t_s = reading_t_s
+        if not self.active:
+            self._init(range_m)
+            self.used += 1
+            return True
+        innovation = range_m - float(self.kf.x[0, 0])
+        s = float(self.kf.P[0, 0]) + self.config.noise_m**2
+        if abs(innovation) > self.config.gate_sigma * math.sqrt(s):
+            self._outliers_in_a_row += 1
+            self.rejected["outlier"] += 1
+            if self._outliers_in_a_row >= self.config.reacquire_after:
+                self._init(range_m)
+                return True
+            return False
+        self._outliers_in_a_row = 0
+        self.kf.update(np.array([[range_m]]))
+        self.used += 1
+        return True
+
+    @property
+    def estimate_m(self) -> float | None:
+        """The filtered distance [m], or None when no target is in view."""
+        return float(self.kf.x[0, 0]) if self.active else None
+
+    @property
+    def rate_m_s(self) -> float | None:
+        return float(self.kf.x[1, 0]) if self.active else None

@@ -1,0 +1,1 @@
+"""hil.analysis: (to be described)."""

@@ -1,0 +1,142 @@
+"""The learning run's figures, computed from ``learn`` output folders (``metrics.json``,
+``weights.npz``): what the acceptance criteria and the paper's Figs. 3 and 4 are measured on.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controller.stepping.weights import read_weights
+
+
+def load_run(folder: str | Path) -> dict[str, Any]:
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: not a folder, so no metrics.json (give learn output folders)")
+    metrics_path = folder / "metrics.json"
+    try:
+        metrics = json.loads(metrics_path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{metrics_path}: no metrics.json (is {folder} a learn output folder?)") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{metrics_path}: not valid JSON ({exc})") from None
+    weights_path = folder / "weights.npz"
+    if weights_path.exists():
+        metrics["weights"], metrics["cell_width_m"] = read_weights(weights_path)  # WeightsError: a ValueError
+    return metrics
+
+
+def window_success(trials: list[dict], first: int, last: int) -> float | None:
+    """Mean success over trials numbered ``first..last`` (1-based, inclusive)."""
+    window = trials[first - 1 : last]
+    return sum(t["success"] for t in window) / len(window) if window else None
+
+
+def mistakes_101_150(trials: list[dict]) -> int | None:
+    """Failed trials among 101-150 (None for a run shorter than 150 trials)."""
+    return sum(not t["success"] for t in trials[100:150]) if len(trials) >= 150 else None
+
+
+def footfall_std_by_step(runs: list[dict], first: int, last: int, steps: int = 4) -> list[float | None]:
+    """Std of the footfall position k steps before the obstacle (k = 1 is the last), pooled."""
+    out = []
+    for k in range(1, steps + 1):
+        xs = [t["footfalls_m"][-k] for r in runs for t in r["trials"][first - 1 : last] if len(t["footfalls_m"]) >= k]
+        out.append(statistics.pstdev(xs) if len(xs) > 1 else None)
+    return out
+
+
+def modulation_by_gate(runs: list[dict], first: int, last: int, gates: int = 6) -> list[float | None]:
+    """Mean |burst change asked for| at the k-th last gate before the crossing (k = 1: the gate at
+    the last footfall, which modulates the crossing swing itself)."""
+    out = []
+    for k in range(1, gates + 1):
+        vals = [abs(t["modulation_s"][-k]) for r in runs for t in r["trials"][first - 1 : last]
+                if len(t.get("modulation_s", [])) >= k]
+        out.append(statistics.fmean(vals) if vals else None)
+    return out
+
+
+def modulation_share_last_gates(by_gate: list[float | None], last: int = 3) -> float | None:
+    """Share of the mean |modulation| (summed over gates) asked for at the last ``last`` gates."""
+    vals = [v or 0.0 for v in by_gate]
+    total = sum(vals)
+    return None if total == 0.0 else sum(vals[:last]) / total
+
+
+def autocorrelation(weights: np.ndarray, max_lag: int) -> np.ndarray:
+    w = np.asarray(weights, dtype=float)
+    w = w - w.mean()
+    denom = float(np.dot(w, w))
+    if denom == 0.0:
+        return np.zeros(max_lag + 1)
+    return np.array([float(np.dot(w[: len(w) - lag], w[lag:])) / denom for lag in range(max_lag + 1)])
+
+
+def autocorrelation_peak(weights: np.ndarray, cell_width_m: float, max_range_m: float = 1.5) -> dict[str, Any]:
+    """The autocorrelation's first local maximum after it first drops below zero, over the cells
+    within ``max_range_m`` (where the obstacle is approached step by step)."""
+    n = min(len(weights), int(round(max_range_m / cell_width_m)))
+    ac = autocorrelation(weights[:n], n // 2)
+    lag = None
+    crossed = False
+    for k in range(1, len(ac) - 1):
+        crossed = crossed or ac[k] < 0.0
+        if crossed and ac[k] >= ac[k - 1] and ac[k] >= ac[k + 1] and ac[k] > 0.0:
+            lag = k
+            break
+    return {
+        "lag_cells": lag,
+        "period_m": None if lag is None else lag * cell_width_m,
+        "peak": None if lag is None else float(ac[lag]),
+        "autocorrelation": [float(a) for a in ac],
+    }
+
+
+def _mean(values) -> float | None:
+    values = [v for v in values if v is not None]
+    return statistics.fmean(values) if values else None
+
+
+def analyze(folders: list[str | Path]) -> dict[str, Any]:
+    runs = [load_run(f) for f in folders]
+    per_seed = []
+    for folder, r in zip(folders, runs):
+        t = r["trials"]
+        row = {
+            "folder": str(folder),
+            "seed": r["config"]["seed"],
+            "learning": r["config"]["learning"],
+            "trials": len(t),
+            "success_rate": window_success(t, 1, len(t)),
+            "success_21_40": window_success(t, 21, 40),
+            "mistakes_101_150": mistakes_101_150(t),
+            "wall_s": r["summary"]["wall_s"],
+            "sim_s": r["summary"]["sim_s"],
+        }
+        if "weights" in r and r["weights"].ndim == 1:  # one context (the context learner's are 2-D)
+            peak = autocorrelation_peak(r["weights"], r["cell_width_m"])
+            row["weights_period_m"] = peak["period_m"]
+            row["weights_autocorrelation_peak"] = peak["peak"]
+        per_seed.append(row)
+    n_trials = min(len(r["trials"]) for r in runs)
+    late = (101, 150) if n_trials >= 150 else (max(1, n_trials - 49), n_trials)
+    strides = [s for r in runs for t in r["trials"] for s in np.diff(t["footfalls_m"][:-1]).tolist()[:2]]
+    return {
+        "runs": per_seed,
+        "mean_success_21_40": _mean(r["success_21_40"] for r in per_seed),
+        "mean_success_rate": _mean(r["success_rate"] for r in per_seed),
+        "seeds_without_mistakes_101_150": sum(1 for r in per_seed if r["mistakes_101_150"] == 0),
+        "late_window": list(late),
+        "footfall_std_m_by_steps_before": footfall_std_by_step(runs, *late),
+        "abs_modulation_s_by_gate_before_crossing": (mod := modulation_by_gate(runs, *late)),
+        "modulation_share_last_three_gates": modulation_share_last_gates(mod),
+        "approach_stride_m": _mean(strides),
+        "mean_wall_s": _mean(r["wall_s"] for r in per_seed),
+    }

@@ -1,0 +1,265 @@
+"""``replay`` and ``decode``: a recorded bus log, offline.
+
+``decode LOG`` prints every frame as named signals, decoded by cantools with our DBC (ODrive
+messages are defined for node 0; a frame of node N is decoded as ``arbitration_id & 0x1F``).
+
+``replay LOG`` feeds the log to a fresh :class:`controller.loop.ControlLoop` and reports its
+decisions per step: the gated range, the encoder cell gated, the burst change the premotor asked
+for and the burst length. The controller's ticks are recovered from the log itself: every tick
+in bring-up and walking sends one Set_Input_Pos per axis, so each hip Set_Input_Pos marks a tick
+and the tick's clock is the timestamp of its first frame; the frames the controller received in
+that tick are those recorded before it. Frames recorded long before the controller started are
+not fed (only the last 0.5 s before its first frame). With the live run's records
+(``controller.jsonl`` beside the log), each replayed step is compared with the live one: the
+same cell, burst change and burst length within 1 ms. The controller is configured as the live
+one was: ``controller.toml`` beside the log (or ``--config FILE``); a session recorded before the
+switch to TOML has a ``controller.json`` there instead, still read (with a warning).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import can
+import cantools
+
+from controller.config import ControllerConfig
+from controller.loop import ControlLoop
+from protocol.contract import DBC_PATH, BusContract
+
+CONTROLLER_CMDS = BusContract.load().odrive_master_cmds  # the DBC's messages sent by the Controller
+SET_INPUT_POS = 12
+PRE_START_S = 0.5
+
+
+class ReplayBus:
+    """What ControlLoop needs of a bus: ``recv`` from a queue the replay fills, ``send`` recorded."""
+
+    def __init__(self) -> None:
+        self.inbox: deque[can.Message] = deque()
+        self.sent: list[can.Message] = []
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:  # noqa: ARG002
+        return self.inbox.popleft() if self.inbox else None
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:  # noqa: ARG002
+        self.sent.append(msg)
+
+    def shutdown(self) -> None:
+        pass
+
+
+def _is_controller(msg: can.Message) -> bool:
+    return (msg.arbitration_id >> 5) != 16 and ((msg.arbitration_id & 0x1F) in CONTROLLER_CMDS or msg.is_remote_frame)
+
+
+def _align(inbound: list[can.Message], t_log: list[float], counts: list[int]) -> int:
+    """Index in ``inbound`` of the first frame the live controller read: the one that puts each
+    tick's frames before that tick (within 1 ms) most often, near the time-based guess."""
+    import bisect
+
+    ts = [m.timestamp for m in inbound]
+    guess = bisect.bisect_left(ts, t_log[0]) - counts[0]
+    best, best_bad = max(guess, 0), None
+    for s in range(max(0, guess - 4), guess + 5):
+        bad, j = 0, s
+        for t, n in zip(t_log[:20000], counts[:20000]):
+            j += n
+            if j > len(ts):
+                bad += 1_000_000
+                break
+            if n and ts[j - 1] > t + 1e-3:
+                bad += 1
+            if j < len(ts) and ts[j] < t - 1e-3:
+                bad += 1
+        if best_bad is None or bad < best_bad:
+            best, best_bad = s, bad
+    return best
+
+
+def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, tick_times: list[float] | None = None,
+           tick_counts: list[int] | None = None, clock_offset_s: float | None = None) -> dict[str, Any]:
+    """Replay ``log``. With ``tick_times`` (the live loop's clock at each tick, from
+    ``controller.ticks``), ``tick_counts`` (frames it read in each tick) and ``clock_offset_s``
+    (log timestamp minus that clock), the loop ticks when the live one did and reads in each
+    tick exactly the frames it read; otherwise the ticks are recovered from the log."""
+    frames = [m for m in can.LogReader(str(log)) if not m.is_error_frame]
+    frames.sort(key=lambda m: m.timestamp)
+    hip_id = next(a.node_id for a in config.axes if a.name == "hip")
+    bus = ReplayBus()
+    loop = ControlLoop(config, bus)
+    first_ctl = next((i for i, m in enumerate(frames) if _is_controller(m)), None)
+    if first_ctl is None:
+        raise ValueError(f"{log}: no frame from the controller in the log")
+    t_first = frames[first_ctl].timestamp
+    inbound = [m for m in frames if not _is_controller(m) and m.timestamp >= t_first - PRE_START_S]
+    # tick starts: the first controller frame after each hip Set_Input_Pos (and the very first)
+    ticks: list[float] = []
+    new_tick = True
+    for m in frames[first_ctl:]:
+        if not _is_controller(m):
+            continue
+        if new_tick:
+            ticks.append(m.timestamp)
+            new_tick = False
+        if (m.arbitration_id & 0x1F) == SET_INPUT_POS and (m.arbitration_id >> 5) == hip_id:
+            new_tick = True
+    offset = 0.0
+    if tick_times is not None and clock_offset_s is not None:
+        ticks, offset = list(tick_times), clock_offset_s
+        inbound = [m for m in frames if not _is_controller(m)]
+        if tick_counts is not None and all(n >= 0 for n in tick_counts):
+            j = _align(inbound, [t + offset for t in ticks], tick_counts)
+            for t, n in zip(ticks, tick_counts):
+                bus.inbox.extend(inbound[j:j + n])
+                j += n
+                loop.tick(t)
+            ticks_done = True
+        else:
+            ticks_done = False
+    else:
+        ticks_done = False
+    n_ticks = len(ticks)
+    j = 0
+    if ticks_done:
+        ticks = []
+    for t in ticks:
+        t_log = t + offset
+        while j < len(inbound) and inbound[j].timestamp < t_log:
+            bus.inbox.append(inbound[j])
+            j += 1
+        loop.tick(t)
+    steps = [{"index": s.index, "onset_s": s.onset_s, "gated_range_m": s.gated_range_m, "cell": s.cell,
+              "modulation_s": s.modulation_s, "burst_s": None if math.isnan(s.burst_s) else s.burst_s,
+              "amplitude": s.amplitude} for s in loop.stats.steps]
+    return {"log": str(log), "frames": len(frames), "ticks": n_ticks,
+            "tick_source": "live ticks and frame counts" if ticks_done else ("live ticks" if offset else "log"), "phase": loop.phase.value,
+            "steps": steps, "reflexes": len(loop.stats.reflexes),
+            "sent_set_input_pos": sum(1 for m in bus.sent if (m.arbitration_id & 0x1F) == SET_INPUT_POS),
+            "logged_set_input_pos": sum(1 for m in frames if _is_controller(m)
+                                        and (m.arbitration_id & 0x1F) == SET_INPUT_POS)}
+
+
+def compare(replayed: list[dict[str, Any]], live: list[dict[str, Any]]) -> dict[str, Any]:
+    by_index = {s["index"]: s for s in live}
+    compared = matching = 0
+    mismatches = []
+    for r in replayed:
+        s = by_index.get(r["index"])
+        if s is None or s["burst_s"] is None or r["burst_s"] is None:
+            continue
+        compared += 1
+        same = (r["cell"] == s["cell"] and abs(r["modulation_s"] - s["modulation_s"]) < 1e-3
+                and abs(r["burst_s"] - s["burst_s"]) < 1e-3)
+        if same:
+            matching += 1
+        else:
+            mismatches.append({"index": r["index"], "replayed": {k: r[k] for k in ("gated_range_m", "cell", "modulation_s", "burst_s")},
+                               "live": {k: s[k] for k in ("gated_range_m", "cell", "modulation_s", "burst_s")}})
+    return {"compared_steps": compared, "matching_steps": matching, "mismatches": mismatches}
+
+
+def main_replay(args) -> int:
+    from controller.settings.daemon import load_controller_config
+    from controller.daemon.run import read_records
+
+    log = Path(args.log)
+    cfg_path = args.config
+    if cfg_path is None:  # the session's: controller.toml, else an old session's controller.json (with a warning)
+        candidates = (log.parent / "controller.toml", log.parent / "controller.json")
+        cfg_path = next((p for p in candidates if p.exists()), None)
+    config = load_controller_config(cfg_path)
+    tick_times = tick_counts = offset = None
+    ticks_path = log.parent / "controller.ticks"
+    rec_path = Path(args.records) if args.records else log.parent / "controller.jsonl"
+    if ticks_path.exists() and rec_path.exists():
+        from array import array
+
+        clock = read_records(rec_path).get("clock") or []
+        if clock:
+            arr = array("d")
+            arr.frombytes(ticks_path.read_bytes())
+            pairs = arr.tolist()
+            tick_times, tick_counts = pairs[0::2], [int(n) for n in pairs[1::2]]
+            offset = clock[0]["realtime_minus_monotonic_s"]
+    result = replay(log, config, tick_times=tick_times, tick_counts=tick_counts, clock_offset_s=offset)
+    result["config"] = None if cfg_path is None else str(cfg_path)
+    live = read_records(rec_path)["step"] if rec_path.exists() else None
+    if live is not None:
+        result.update(compare(result["steps"], live))
+        result["records"] = str(rec_path)
+    live_by = {s["index"]: s for s in live or []}
+    out = sys.stderr if args.json == "-" else sys.stdout
+    for s in result["steps"]:
+        g = "   -   " if s["gated_range_m"] is None else f"{s['gated_range_m']:.3f} m"
+        b = "  -  " if s["burst_s"] is None else f"{s['burst_s']:.3f}"
+        line = f"step {s['index']:4d}: gated {g}, cell {'-' if s['cell'] is None else s['cell']:>2}, " \
+               f"burst change {s['modulation_s']:+.3f} s, burst {b} s"
+        if s["index"] in live_by and live_by[s["index"]]["burst_s"] is not None and s["burst_s"] is not None:
+            l = live_by[s["index"]]
+            ok = (l["cell"] == s["cell"] and abs(l["burst_s"] - s["burst_s"]) < 1e-3
+                  and abs(l["modulation_s"] - s["modulation_s"]) < 1e-3)
+            line += "   = live" if ok else f"   live: cell {l['cell']}, change {l['modulation_s']:+.3f}, burst {l['burst_s']:.3f}"
+        print(line, file=out)
+    summary = f"replayed {result['frames']} frames in {result['ticks']} ticks: {len(result['steps'])} steps, " \
+              f"{result['reflexes']} reflexes, final phase {result['phase']}"
+    if live is not None:
+        summary += f"; {result['matching_steps']}/{result['compared_steps']} steps as live"
+    print(summary, file=sys.stderr)
+    if args.json is not None:
+        text = json.dumps(result, indent=1)
+        if args.json == "-":
+            print(text)
+        else:
+            Path(args.json).write_text(text + "\n")
+    return 0
+
+
+def main_decode(args) -> int:
+    import os
+
+    try:
+        return _decode(args)
+    except BrokenPipeError:  # e.g. piped into head
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+def _decode(args) -> int:
+    if getattr(args, "load", False):
+        import json
+
+        from hil.analysis.busload import bus_load_from_log
+
+        print(json.dumps(bus_load_from_log(args.log, args.bitrate, args.skip_s), indent=2))
+        return 0
+    db = cantools.database.load_file(str(DBC_PATH))
+    contract = BusContract.load()
+    for i, msg in enumerate(can.LogReader(str(args.log))):
+        if args.limit is not None and i >= args.limit:
+            break
+        arb = msg.arbitration_id
+        route = None if msg.is_extended_id or msg.is_error_frame else contract.route(arb)
+        head = f"{msg.timestamp:.6f} {arb:03X}"
+        if route is None:
+            print(f"{head} unknown {bytes(msg.data).hex()}")
+            continue
+        name = route.codec.name
+        message = db.get_message_by_name(name)
+        who = "sensor_board" if route.node_id == 16 else f"node {route.node_id}"
+        if msg.is_remote_frame:
+            print(f"{head} {who} {name} (remote request)")
+            continue
+        try:
+            signals = message.decode(bytes(msg.data), decode_choices=True)
+        except Exception as exc:  # noqa: BLE001 - a malformed frame is printed, not fatal
+            print(f"{head} {who} {name} undecodable ({exc}): {bytes(msg.data).hex()}")
+            continue
+        text = " ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in signals.items())
+        print(f"{head} {who} {name} {text}")
+    return 0

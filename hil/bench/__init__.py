@@ -1,0 +1,1 @@
+"""hil.bench: (to be described)."""

@@ -1,0 +1,1 @@
+"""hil.cli: (to be described)."""

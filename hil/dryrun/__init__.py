@@ -1,0 +1,1 @@
+"""hil.dryrun: (to be described)."""

@@ -1,0 +1,1 @@
+"""hil.experiments: (to be described)."""

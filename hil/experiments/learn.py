@@ -1,0 +1,323 @@
+"""The learning experiment: trial after trial, the leg approaches an obstacle and steps over it.
+
+The leg walks continuously through the whole stack in lockstep. A trial places a rectangular
+obstacle at a random distance ahead (a side channel of the simulation: the controller learns of
+it only through the range sensor), walks until the hip is well past it, and removes it; the next
+trial's obstacle comes into view at once. Success is ground truth from the plant: no contact
+between any leg link and the obstacle. What the controller felt (its reflexes), decided (its
+gated burst changes) and learned (its weights) is read from the controller's own records.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from controller.config import ControllerConfig
+from controller.stepping.context import ContextPremotor
+from controller.stepping.learner import AdaptivePremotor
+from controller.supervisor import Phase
+from controller.stepping.weights import save_weights
+from firmware_sim.leg import LegHardware
+from firmware_sim.plant import Obstacle
+from hil.analysis.metrics import footfall_std_by_step, mistakes_101_150, window_success
+from hil.lockstep.groundtruth import FootfallTracker
+from hil.lockstep.harness import Lockstep, LockstepConfig
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LearnConfig:
+    """A learning run.
+
+    Attributes:
+        trials: number of approaches; default 150.
+        seed: seeds the start distances and the sensor noise; default 0.
+        obstacle_height_m: obstacle height [m]; default 0.08.
+        obstacle_heights_m: if given, each trial's obstacle height is drawn uniformly from these
+            [m] (mixed heights, for the context learner); default () = always obstacle_height_m.
+        obstacle_depth_m: obstacle extent along the rail [m]; default 0.10.
+        range_noise_m: range sensor noise, one standard deviation [m]; default 0.02.
+        range_dropout_prob: probability that a range sample is a dropout; default 0.05.
+        start_min_m, start_max_m: the obstacle's near edge ahead of the hip when a trial begins
+            [m]; uniform, default 2.2-2.9 (two strides of spread, inside the sensor's 3 m).
+        past_obstacle_m: a trial ends when the hip is this far past the far edge [m]; 0.45.
+        learning: False freezes the weights at zero (the no-adaptation baseline); default True.
+        method: which premotor drives the burst length (see :mod:`hil.experiments.methods`); default
+            "learner" (the Elegant Stepping model).
+        trace_trials: 0-based indices of trials whose foot path and burst length are recorded
+            at ``trace_rate_hz`` into the trial's ``trace`` (Fig. 2, burst against time);
+            negative indices count from the end; default none.
+        trace_rate_hz: sample rate of a trace [Hz]; default 100.
+        controller: the controller's configuration.
+    """
+
+    trials: int = 150
+    seed: int = 0
+    obstacle_height_m: float = 0.08
+    obstacle_heights_m: tuple[float, ...] = ()
+    obstacle_depth_m: float = 0.10
+    range_noise_m: float = 0.02
+    range_dropout_prob: float = 0.05
+    start_min_m: float = 2.2
+    start_max_m: float = 2.9
+    past_obstacle_m: float = 0.45
+    learning: bool = True
+    method: str = "learner"
+    trace_trials: tuple[int, ...] = ()
+    trace_rate_hz: float = 100.0
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.trials <= 100000:
+            raise ValueError(f"trials must be in [1, 100000], got {self.trials}")
+        for h in (self.obstacle_height_m, *self.obstacle_heights_m):
+            if not 0.03 < h <= 0.20:
+                raise ValueError(f"obstacle_height_m must be in (0.03, 0.20] m (the sensor sees above 3 cm), got {h}")
+        if not 0.01 <= self.obstacle_depth_m <= 0.30:
+            raise ValueError(f"obstacle_depth_m must be in [0.01, 0.30] m, got {self.obstacle_depth_m}")
+        if not 0.0 <= self.range_noise_m <= 0.5:
+            raise ValueError(f"range_noise_m must be in [0, 0.5] m, got {self.range_noise_m}")
+        if not 1.0 <= self.trace_rate_hz <= 1000.0:
+            raise ValueError(f"trace_rate_hz must be in [1, 1000] Hz, got {self.trace_rate_hz}")
+        if not 0.5 <= self.start_min_m <= self.start_max_m <= 3.2:
+            raise ValueError(f"need 0.5 <= start_min_m <= start_max_m <= 3.2 m, got {self.start_min_m}, "
+                             f"{self.start_max_m}")
+
+    def lockstep(self) -> LockstepConfig:
+        hw = LegHardware()
+        sensor = replace(hw.sensor, range_noise_m=self.range_noise_m, range_dropout_prob=self.range_dropout_prob)
+        ctl = self.controller
+        if not self.learning:
+            ctl = replace(ctl, learner=replace(ctl.learner, learning=False))
+        ctl = replace(ctl, range_filter=replace(ctl.range_filter, noise_m=max(self.range_noise_m, 0.005)))
+        return LockstepConfig(seed=self.seed, hardware=replace(hw, sensor=sensor), controller=ctl)
+
+
+def make_premotor(config: LearnConfig, truth: Callable[[], float | None]):
+    """The premotor module of a method other than the learner (the controller's default).
+
+    ``truth()`` is the true distance from the foot to the obstacle's near edge [m] (None with no
+    obstacle): ground truth that only the oracle is given.
+    """
+    ctl = config.controller
+    if config.method == "oracle":
+        from hil.experiments.oracle import OraclePremotor
+
+        return OraclePremotor(ctl, truth)
+    if config.method == "rl":
+        from controller.stepping.rl import QLearnerConfig, QLearningPremotor
+
+        return QLearningPremotor(ctl.encoder.n_cells, ctl.cpg.burst_s, QLearnerConfig(seed=config.seed))
+    if config.method == "context":
+        from controller.stepping.context import ContextPremotor
+
+        learner = ctl.learner if config.learning else replace(ctl.learner, learning=False)
+        return ContextPremotor(ctl.height.n_contexts, ctl.encoder.n_cells, ctl.cpg.burst_s, learner)
+    raise ValueError(f"method {config.method!r} is not available")
+
+
+class LearningRun:
+    """One learning run: build with a config, call :meth:`run`, read ``trials`` and the weights."""
+
+    def __init__(self, config: LearnConfig, premotor=None) -> None:
+        self.config = config
+        self._near_m: float | None = None  # the current obstacle's near edge (ground truth)
+        if premotor is None and config.method not in ("learner", "none"):
+            premotor = make_premotor(config, self._true_distance_m)
+        self.ls = Lockstep(config.lockstep(), premotor=premotor)
+        self.rng = np.random.default_rng(config.seed)
+        self.tracker = FootfallTracker(self.ls.plant)
+        self.trials: list[dict[str, Any]] = []
+
+    def _true_distance_m(self) -> float | None:
+        if self._near_m is None:
+            return None
+        return self._near_m - self.ls.plant.foot_position()[0]
+
+    @property
+    def premotor(self):
+        return self.ls.loop.premotor
+
+    def bring_up(self, timeout_s: float = 10.0) -> None:
+        ls = self.ls
+        while ls.loop.phase is not Phase.WALK:
+            if ls.t_s > timeout_s or ls.loop.phase is Phase.FAULT:
+                raise RuntimeError(f"the leg did not come up: {ls.loop.supervisor.fault_cause or ls.loop.phase}")
+            ls.step()
+        for _ in range(1000):  # one second of walking before the first obstacle
+            ls.step()
+            self.tracker.update()
+
+    REWIND_AFTER_M = 150.0
+
+    def _rewind_if_far(self) -> None:
+        """Past REWIND_AFTER_M, wait for the foot to be in the air and move the rig back."""
+        ls, plant = self.ls, self.ls.plant
+        if plant.carriage_x_m < self.REWIND_AFTER_M:
+            return
+        while plant.contacts()[0] or plant.foot_position()[1] < 0.02:
+            ls.step()
+            self.tracker.update()
+        plant.rewind_rail(self.REWIND_AFTER_M)
+
+    def traced(self, index: int) -> bool:
+        n = self.config.trials
+        return any(index == (k if k >= 0 else n + k) for k in self.config.trace_trials)
+
+    def trial(self, index: int, on_step: Callable[[Lockstep], None] | None = None) -> dict[str, Any]:
+        """Run trial ``index``; ``on_step(lockstep)``, if given, is called after every physics step
+        (the animation grabs its frames there)."""
+        c, ls = self.config, self.ls
+        plant, loop = ls.plant, ls.loop
+        self._rewind_if_far()
+        x0 = plant.carriage_x_m
+        near = x0 + float(self.rng.uniform(c.start_min_m, c.start_max_m))
+        far = near + c.obstacle_depth_m
+        height = c.obstacle_height_m
+        if c.obstacle_heights_m:
+            height = float(c.obstacle_heights_m[int(self.rng.integers(len(c.obstacle_heights_m)))])
+        plant.add_obstacle(Obstacle(near, height, c.obstacle_depth_m))
+        self._near_m = near
+        t0 = ls.t_s
+        n_steps0, n_reflex0, n_td0 = len(loop.stats.steps), len(loop.stats.reflexes), len(self.tracker.footfalls_x_m)
+        contact = False
+        trace: dict[str, list[float]] | None = None
+        if self.traced(index):
+            trace = {"t_s": [], "foot_x_m": [], "foot_z_m": [], "burst_s": [], "contact": []}
+        every = max(1, int(round(ls.config.rig.physics_hz / c.trace_rate_hz))) if trace else 0
+        n = 0
+        while plant.carriage_x_m < far + c.past_obstacle_m:
+            ls.step()
+            self.tracker.update()
+            if not contact and plant.carriage_x_m > near - 1.0:
+                contact = plant.obstacle_contact()
+            if trace is not None and n % every == 0:
+                fx, fz = plant.foot_position()
+                trace["t_s"].append(ls.t_s - t0)
+                trace["foot_x_m"].append(fx - near)
+                trace["foot_z_m"].append(fz)
+                trace["burst_s"].append(loop.cpg.burst_s)
+                trace["contact"].append(bool(contact))
+            n += 1
+            if on_step is not None:
+                on_step(ls)
+            if loop.phase is Phase.FAULT:
+                raise RuntimeError(f"safe stop during trial {index}: {loop.supervisor.fault_cause}")
+        plant.clear_obstacles()
+        self._near_m = None
+        touchdowns = list(zip(self.tracker.touchdown_t_s[n_td0:], self.tracker.footfalls_x_m[n_td0:]))
+        before = [(t, x) for t, x in touchdowns if x < near]
+        crossing_t = next((t for t, x in touchdowns if x >= near), ls.t_s)
+        steps = loop.stats.steps[n_steps0:]
+        # the decisions before the crossing: every gate whose swing began before the foot landed
+        # beyond the near edge (the last of them is the crossing swing's own gate)
+        decided = [s for s in steps if s.swing_start_s < crossing_t]
+        return {
+            "index": index,
+            "success": not contact,
+            "start_distance_m": near - x0,
+            "obstacle_height_m": height,
+            "reflexes": [
+                {"kind": r.kind, "t_s": r.t_s - t0, "cause": r.cause, "swing": r.swing, "phase": r.phase}
+                for r in loop.stats.reflexes[n_reflex0:]
+            ],
+            "footfalls_m": [x - near for _, x in before],
+            "burst_s": [s.burst_s for s in steps if not math.isnan(s.burst_s)],
+            "gated_range_m": [s.gated_range_m for s in decided],
+            "gated_cells": [s.cell for s in decided],
+            "gated_contexts": [s.context for s in decided],
+            "modulation_s": [s.modulation_s for s in decided],
+            "gated_decisions": sum(1 for s in decided if s.modulation_s != 0.0),
+            "lift_steps": sum(1 for s in steps if s.amplitude > 1.0),
+            "sim_s": ls.t_s - t0,
+            **({"trace": trace} if trace is not None else {}),
+        }
+
+    def run(self, progress: bool = False) -> list[dict[str, Any]]:
+        self.bring_up()
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=self.config.trials, unit="trial", desc="learn" if self.config.learning else "no-learning")
+        successes = 0
+        for i in range(self.config.trials):
+            trial = self.trial(i)
+            self.trials.append(trial)
+            successes += trial["success"]
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(success=f"{successes / (i + 1):.0%}")
+        if bar is not None:
+            bar.close()
+        return self.trials
+
+    def close(self) -> None:
+        self.ls.close()
+
+
+def summarize(trials: list[dict[str, Any]], wall_s: float, sim_s: float) -> dict[str, Any]:
+    n = len(trials)
+    return {
+        "trials": n,
+        "success_rate": window_success(trials, 1, n),
+        "success_1_20": window_success(trials, 1, 20),
+        "success_21_40": window_success(trials, 21, 40),
+        "mistakes_101_150": mistakes_101_150(trials),
+        "reflexes": sum(len(t["reflexes"]) for t in trials),
+        "wall_s": wall_s,
+        "sim_s": sim_s,
+        "trials_per_minute": n / wall_s * 60.0 if wall_s > 0 else None,
+    }
+
+
+def run_learning(config: LearnConfig, out_dir: str | Path | None = None, progress: bool = False,
+                 figures: bool = False) -> dict[str, Any]:
+    """Run; write ``metrics.json``, ``weights.npz`` (and with ``figures``, ``figures/``) into
+    ``out_dir`` if given; return the metrics."""
+    wall0 = time.perf_counter()
+    run = LearningRun(config)
+    try:
+        trials = run.run(progress=progress)
+        sim_s = run.ls.t_s
+        premotor = run.premotor
+    finally:
+        run.close()
+    metrics = {
+        "config": dataclasses.asdict(config),
+        "trials": trials,
+        "summary": summarize(trials, time.perf_counter() - wall0, sim_s),
+    }
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = out / "metrics.json.tmp"
+        tmp.write_text(json.dumps(metrics, indent=1) + "\n")
+        tmp.replace(out / "metrics.json")
+        if isinstance(premotor, (AdaptivePremotor, ContextPremotor)):  # (n_cells,) or (n_contexts, n_cells)
+            save_weights(out / "weights.npz", premotor.weights, config.controller.encoder.cell_width_m)
+        if figures:
+            write_figures(out, metrics, premotor)
+    return metrics
+
+
+def write_figures(out: Path, metrics: dict[str, Any], premotor) -> None:
+    from hil.analysis import figures
+
+    fig_dir = out / "figures"
+    trials = metrics["trials"]
+    figures.learning_curve(trials, fig_dir)
+    if isinstance(premotor, AdaptivePremotor):
+        figures.weights_by_distance(premotor.weights, metrics["config"]["controller"]["encoder"]["cell_width_m"], fig_dir)
+    late = (max(1, len(trials) - 49), len(trials))
+    figures.footfall_spread(footfall_std_by_step([metrics], *late), fig_dir)

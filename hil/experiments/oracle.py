@@ -1,0 +1,81 @@
+"""The oracle baseline: a geometric planner that knows exactly where the obstacle is.
+
+The "model the world, then plan" approach the paper argues against, given everything it needs:
+at every step onset it reads the true distance from the stance foot to the obstacle's near edge
+(ground truth from the simulation, never from the bus) and plans the remaining strides so that the
+last footfall before the obstacle lands at ``takeoff_m`` from the near edge, the middle of the
+take-off window (measured without adaptation at 0.08 m: successes for last footfalls from about
+-0.195 to -0.08 m). It splits the remaining distance into the whole number of strides closest to
+the natural stride, each within the CPG's burst bounds, and sets the burst for the coming swing:
+``stride = v * (stance + burst)``.
+
+It is a Premotor (``controller.stepping.premotor``) like the learner, so it drives the same CPG through the
+same loop, bus and plant; it never learns.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+from controller.config import ControllerConfig
+
+
+@dataclass(frozen=True)
+class OracleConfig:
+    """Attributes:
+    takeoff_m: planned last footfall relative to the near edge [m]; default -0.16 (the foot
+        settles about 2.5 cm past the plan, measured: footfalls near -0.115 for a plan of -0.14;
+        so -0.16 lands near the window's middle).
+    """
+
+    takeoff_m: float = -0.16
+
+
+class OraclePremotor:
+    """Plans stride lengths from the true distance ``truth()`` (foot to near edge [m], or None)."""
+
+    def __init__(self, controller: ControllerConfig, truth: Callable[[], float | None],
+                 config: OracleConfig = OracleConfig()) -> None:
+        self.config = config
+        self.truth = truth
+        cpg = controller.cpg
+        self.v_m_s = controller.gait.ground_speed_m_s
+        self.stance_s = cpg.stance_s
+        self.base_burst_s = cpg.burst_s
+        self.stride_min_m = self.stride_m(cpg.burst_min_s)
+        self.stride_max_m = self.stride_m(cpg.burst_max_s)
+        self.stride_base_m = self.stride_m(cpg.burst_s)
+        self._burst_s = cpg.burst_s
+        self.plans: list[tuple[float, int, float]] = []  # (distance to plan [m], strides, stride [m])
+
+    def stride_m(self, burst_s: float) -> float:
+        return self.v_m_s * (self.stance_s + burst_s)
+
+    def plan(self, distance_m: float | None) -> float:
+        """Burst [s] for the coming swing, given the foot's distance to the near edge."""
+        if distance_m is None:
+            return self.base_burst_s
+        remaining = distance_m + self.config.takeoff_m  # from this footfall to the planned take-off
+        if remaining < 0.5 * self.stride_min_m:
+            return self.base_burst_s  # this is the take-off step: the swing crosses
+        lo = max(1, math.ceil(remaining / self.stride_max_m - 1e-9))
+        hi = max(lo, math.floor(remaining / self.stride_min_m + 1e-9))
+        n = min(max(round(remaining / self.stride_base_m), lo), hi)
+        stride = min(self.stride_max_m, max(self.stride_min_m, remaining / n))
+        self.plans.append((distance_m, n, stride))
+        return stride / self.v_m_s - self.stance_s
+
+    def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
+        distance = self.truth()
+        self._burst_s = self.plan(distance if distance is not None and distance > 0.0 else None)
+
+    def burst_s(self, now_s: float) -> float:
+        return self._burst_s
+
+    def on_reflex(self, kind: str, now_s: float) -> None:
+        pass
+
+    def gated_weight(self) -> float:
+        return self._burst_s - self.base_burst_s

@@ -1,0 +1,387 @@
+"""The sweep engine: every (method, obstacle height, seed) cell on a process pool or a Dask cluster.
+
+A cell is one learning run, :func:`hil.experiments.methods.run_method`, written to ``DIR/cells/<cell>/``
+(``metrics.json``, ``weights.npz``). The pool and the Dask path submit the same top-level,
+picklable function, :func:`run_cell`. A sweep is resumable: a cell whose ``metrics.json`` parses and
+has the cell's configuration is not run again; a corrupt or mismatched one is run again (with a
+warning). A cell that raises is recorded and the others are kept.
+
+The sweep folder ``DIR``:
+
+- ``config.json``: the sweep's configuration (methods, heights, seeds, trials);
+- ``summary.json``: one row per finished cell (:func:`summary_row`), sorted by method (in the
+  given order), height, seed; no wall-clock time in it, so it does not depend on the executor;
+- ``timing.json``: wall time per cell and in total, which executor ran them, and the errors.
+
+The figures and ``report.md`` are :mod:`hil.analysis.report`'s. With a remote Dask cluster, ``DIR`` must be
+on a filesystem that the workers share with the caller: the cells write their files themselves.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import multiprocessing
+import os
+import re
+import time
+import traceback
+import uuid
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+from hil.analysis.stats import trials_to_criterion
+
+log = logging.getLogger(__name__)
+
+# the methods of hil.experiments.methods (kept here so that parsing a sweep does not import the simulation)
+KNOWN_METHODS = ("learner", "none", "oracle", "rl", "context")
+DEFAULT_METHODS = ("learner", "none", "oracle", "rl")
+MIN_HEIGHT_M, MAX_HEIGHT_M = 0.03, 0.20  # as hil.experiments.learn.LearnConfig: the sensor sees above 3 cm
+
+Height = float | tuple[float, ...]
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """Seeds from ``"0,1,2"``, a range ``"0-9"`` (inclusive) or both (``"0-2,7"``)."""
+    seeds: list[int] = []
+    for part in str(text).split(","):
+        part = part.strip()
+        m = re.fullmatch(r"(\d+)\s*-\s*(\d+)", part)
+        try:
+            if m:
+                lo, hi = int(m.group(1)), int(m.group(2))
+                if lo > hi:
+                    raise ValueError
+                seeds.extend(range(lo, hi + 1))
+            else:
+                seeds.append(int(part))
+        except ValueError:
+            raise ValueError(f"seeds: {part!r} in {text!r} is not a seed or a range like 0-9") from None
+    return tuple(seeds)
+
+
+def parse_heights(text: str) -> tuple[float, ...]:
+    """Obstacle heights [m] from a comma list such as ``"0.06,0.10"``."""
+    try:
+        return tuple(float(p) for p in str(text).split(","))
+    except ValueError:
+        raise ValueError(f"obstacle_heights_m: {text!r} is not a comma list of heights in metres") from None
+
+
+def parse_methods(text: str) -> tuple[str, ...]:
+    """Methods from a comma list such as ``"learner,none"``."""
+    return tuple(p.strip() for p in str(text).split(",") if p.strip())
+
+
+def height_tag(height: Height) -> str:
+    """A height as a file-name tag: ``60mm``, or ``60mm+100mm`` for a mixed scenario."""
+    heights = height if isinstance(height, tuple) else (height,)
+    return "+".join(f"{round(h * 1000.0, 6):g}mm" for h in heights)
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One learning run of a sweep.
+
+    Attributes:
+        method: the method (see :mod:`hil.experiments.methods`).
+        obstacle_height_m: obstacle height [m]; a tuple mixes these heights, one drawn per trial.
+        seed: the run's seed.
+        trials: number of trials.
+    """
+
+    method: str
+    obstacle_height_m: Height
+    seed: int
+    trials: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.method}_h{height_tag(self.obstacle_height_m)}_s{self.seed}"
+
+    def folder(self, out_dir: Path) -> Path:
+        return Path(out_dir) / "cells" / self.name
+
+    def mismatch(self, metrics: Any) -> str | None:
+        """Why ``metrics`` (a parsed ``metrics.json``) is not this cell's finished run; None if it is."""
+        try:
+            config, trials = metrics["config"], metrics["trials"]
+            mixed = isinstance(self.obstacle_height_m, tuple)
+            heights = list(self.obstacle_height_m) if mixed else []
+            want = {"method": self.method, "seed": self.seed, "trials": self.trials, "obstacle_heights_m": heights}
+            if not mixed:
+                want["obstacle_height_m"] = self.obstacle_height_m
+            for key, value in want.items():
+                if config.get(key) != value:
+                    return f"config {key} is {config.get(key)!r}, the cell's is {value!r}"
+            if len(trials) != self.trials or not all(isinstance(t["success"], bool) for t in trials):
+                return f"it holds {len(trials)} trials, not {self.trials} with a success flag each"
+        except (KeyError, TypeError) as exc:
+            return f"it is not a learn run's metrics ({type(exc).__name__}: {exc})"
+        return None
+
+
+def grid(methods: Sequence[str], obstacle_heights_m: Sequence[float], mixed_heights: bool, seeds: Sequence[int],
+         trials: int) -> list[Cell]:
+    """The cells in summary order: methods as given, then heights (ascending), then seeds."""
+    scenarios: list[Height] = [tuple(obstacle_heights_m)] if mixed_heights else sorted(obstacle_heights_m)
+    return [Cell(m, h, s, trials) for m in methods for h in scenarios for s in sorted(seeds)]
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """A sweep over seeds x obstacle heights x methods.
+
+    Attributes:
+        out_dir: the sweep folder (see the module docstring); required.
+        seeds: the runs' seeds (start distances and sensor noise); default 0..9.
+        obstacle_heights_m: obstacle heights [m], each in (0.03, 0.20], one scenario each;
+            default (0.08,).
+        methods: the methods compared, in report order (learner, none, oracle, rl, context);
+            default learner, none, oracle, rl.
+        trials: trials per run, >= 1; default 150.
+        mixed_heights: True makes ``obstacle_heights_m`` ONE scenario in which each trial draws
+            its height from the list; default False.
+        workers: processes of the local pool, or of the ``dask="local"`` cluster, >= 1;
+            default os.cpu_count().
+        dask: None runs the cells on a local process pool; ``"local"`` starts a
+            ``distributed.LocalCluster`` (processes, one thread each) and closes it afterwards;
+            anything else is a Dask scheduler's address (``tcp://host:8786``); default None.
+    """
+
+    out_dir: Path
+    seeds: tuple[int, ...] = tuple(range(10))
+    obstacle_heights_m: tuple[float, ...] = (0.08,)
+    methods: tuple[str, ...] = DEFAULT_METHODS
+    trials: int = 150
+    mixed_heights: bool = False
+    workers: int = field(default_factory=lambda: os.cpu_count() or 1)
+    dask: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "out_dir", Path(self.out_dir))
+        for name in ("seeds", "obstacle_heights_m", "methods"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+            values = getattr(self, name)
+            if not values:
+                raise ValueError(f"{name}: need at least one")
+            if len(set(values)) != len(values):
+                raise ValueError(f"{name}: duplicates in {list(values)}")
+        for s in self.seeds:
+            if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+                raise ValueError(f"seeds: need non-negative integers, got {s!r}")
+        for h in self.obstacle_heights_m:
+            if not (isinstance(h, (int, float)) and math.isfinite(h) and MIN_HEIGHT_M < h <= MAX_HEIGHT_M):
+                raise ValueError(f"obstacle_heights_m: each must be in ({MIN_HEIGHT_M}, {MAX_HEIGHT_M}] m, got {h!r}")
+        for m in self.methods:
+            if m not in KNOWN_METHODS:
+                raise ValueError(f"methods: unknown method {m!r}; choose from {', '.join(KNOWN_METHODS)}")
+        if isinstance(self.trials, bool) or not isinstance(self.trials, int) or not 1 <= self.trials <= 100000:
+            raise ValueError(f"trials: must be an integer in [1, 100000], got {self.trials!r}")
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise ValueError(f"workers: must be a positive integer, got {self.workers!r}")
+        if self.dask is not None and not str(self.dask).strip():
+            raise ValueError("dask: give 'local' or a scheduler address such as tcp://host:8786")
+        if len({c.name for c in self.cells()}) != len(self.cells()):
+            raise ValueError(f"obstacle_heights_m: heights closer than 1 nm give the same cell names: "
+                             f"{list(self.obstacle_heights_m)}")
+
+    def cells(self) -> list[Cell]:
+        return grid(self.methods, self.obstacle_heights_m, self.mixed_heights, self.seeds, self.trials)
+
+    def to_json(self) -> dict[str, Any]:
+        """What the results depend on (not where or how they were computed)."""
+        return {"methods": list(self.methods), "obstacle_heights_m": list(self.obstacle_heights_m),
+                "mixed_heights": self.mixed_heights, "seeds": list(self.seeds), "trials": self.trials}
+
+
+def cells_from_json(config: dict[str, Any]) -> list[Cell]:
+    """The cells of a sweep from its ``config.json``."""
+    try:
+        return grid(config["methods"], config["obstacle_heights_m"], config["mixed_heights"], config["seeds"],
+                    config["trials"])
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"config.json: not a sweep configuration ({type(exc).__name__}: {exc})") from None
+
+
+def summary_row(cell: Cell, success: Sequence[bool]) -> dict[str, Any]:
+    """A ``summary.json`` row from a cell's trial outcomes (True: stepped over without contact).
+
+    ``trials_to_criterion``: trials run before the first 10-trial window at least 90% successful
+    (None if never); ``mistakes_after_100``: failures among trials 101..N (None if N <= 100);
+    ``success_last_50``: success rate over the last 50 trials (all of them if fewer);
+    ``success_rate``: over all trials.
+    """
+    s = [bool(x) for x in success]
+    if not s:
+        raise ValueError(f"success: cell {cell.name} has no trials")
+    last = s[-50:]
+    return {
+        "method": cell.method,
+        "obstacle_height_m": list(cell.obstacle_height_m) if isinstance(cell.obstacle_height_m, tuple)
+        else cell.obstacle_height_m,
+        "seed": cell.seed,
+        "trials": len(s),
+        "trials_to_criterion": trials_to_criterion(s, window=10, threshold=0.9),
+        "mistakes_after_100": sum(not x for x in s[100:]) if len(s) > 100 else None,
+        "success_last_50": sum(last) / len(last),
+        "success_rate": sum(s) / len(s),
+        "cell": cell.name,
+    }
+
+
+def run_cell(method: str, seed: int, trials: int, obstacle_height_m: Height, out_dir: str) -> dict[str, Any]:
+    """Run one cell into ``out_dir`` (the task that the pool and Dask run): returns its wall time
+    [s] and, if it raised, the error (the exception is caught here so that it always pickles)."""
+    t0 = time.perf_counter()
+    try:
+        from hil.experiments.methods import run_method
+
+        run_method(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m, out_dir=out_dir)
+        error = tb = None
+    except Exception as exc:  # noqa: BLE001 - a failed cell is recorded, the sweep goes on
+        error, tb = f"{type(exc).__name__}: {exc}", traceback.format_exc()
+    return {"wall_s": time.perf_counter() - t0, "error": error, "traceback": tb}
+
+
+def read_cell(cell: Cell, out_dir: Path) -> tuple[dict[str, Any] | None, str | None]:
+    """A finished cell's metrics, or None and why it is not finished (None if it never ran)."""
+    path = cell.folder(out_dir) / "metrics.json"
+    if not path.is_file():
+        return None, None
+    try:
+        metrics = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        return None, f"{path} is corrupt ({exc})"
+    reason = cell.mismatch(metrics)
+    return (None, f"{path} does not match the cell: {reason}") if reason else (metrics, None)
+
+
+def _task(cell: Cell, out_dir: Path) -> tuple:
+    return (cell.method, cell.seed, cell.trials, cell.obstacle_height_m, str(cell.folder(out_dir)))
+
+
+def _outcome(get: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """A task's result, or the executor's error (a worker that died, a lost connection...)."""
+    try:
+        return get()
+    except Exception as exc:  # noqa: BLE001
+        return {"wall_s": None, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+
+
+def _on_pool(todo: list[Cell], out_dir: Path, workers: int) -> Iterator[tuple[Cell, dict[str, Any]]]:
+    # spawn, not fork: the parent may hold threads (tqdm, logging) that a fork would copy mid-state
+    context = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context)
+    try:
+        futures = {pool.submit(run_cell, *_task(c, out_dir)): c for c in todo}
+        for future in as_completed(futures):
+            yield futures[future], _outcome(future.result)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _on_dask(todo: list[Cell], out_dir: Path, address: str, workers: int) -> Iterator[tuple[Cell, dict[str, Any]]]:
+    import distributed
+
+    if not log.isEnabledFor(logging.DEBUG):  # the scheduler's INFO chatter would bury the progress bar
+        logging.getLogger("distributed").setLevel(logging.WARNING)
+    cluster = None
+    if address == "local":
+        log.info("starting a Dask LocalCluster of %d worker processes", workers)
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                           dashboard_address=None)
+        client = distributed.Client(cluster)
+    else:
+        log.info("connecting to the Dask scheduler at %s", address)
+        client = distributed.Client(address)
+    try:
+        run = uuid.uuid4().hex[:8]
+        by_key = {}
+        for c in todo:
+            future = client.submit(run_cell, *_task(c, out_dir), key=f"cell-{c.name}-{run}", pure=False)
+            by_key[future.key] = (c, future)
+        for future in distributed.as_completed([f for _, f in by_key.values()]):
+            yield by_key[future.key][0], _outcome(future.result)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _write_json(path: Path, data: Any) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    tmp.replace(path)
+
+
+def run_sweep(config: SweepConfig, progress: bool = True) -> dict[str, Any]:
+    """Run the sweep's unfinished cells; write ``config.json``, ``summary.json`` and ``timing.json``.
+
+    Returns ``{"cells", "ran", "resumed", "failed": [cell names], "rows"}``.
+    """
+    from tqdm import tqdm
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    wall0 = time.perf_counter()
+    out = config.out_dir.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    _write_json(out / "config.json", config.to_json())
+    cells = config.cells()
+    rows: dict[str, dict[str, Any]] = {}
+    timing: dict[str, dict[str, Any]] = {}
+    todo: list[Cell] = []
+    for cell in cells:
+        metrics, problem = read_cell(cell, out)
+        if metrics is not None:
+            rows[cell.name] = summary_row(cell, [t["success"] for t in metrics["trials"]])
+            timing[cell.name] = {"status": "resumed", "wall_s": metrics.get("summary", {}).get("wall_s"),
+                                 "error": None}
+            continue
+        if problem:
+            log.warning("%s; running the cell again", problem)
+            (cell.folder(out) / "metrics.json").unlink()
+        todo.append(cell)
+    log.info("%d of %d cells to run (%d finished before)", len(todo), len(cells), len(rows))
+
+    executor = "pool" if config.dask is None else f"dask {config.dask}"
+    if todo:
+        results = (_on_pool(todo, out, config.workers) if config.dask is None
+                   else _on_dask(todo, out, config.dask, config.workers))
+        with logging_redirect_tqdm(), tqdm(total=len(todo), unit="cell", desc="sweep", disable=not progress) as bar:
+            for cell, result in results:
+                error = result["error"]
+                if error is None:
+                    metrics, problem = read_cell(cell, out)
+                    if metrics is None:
+                        error = f"the run finished but left no valid metrics.json: {problem or 'missing'}" + (
+                            "" if config.dask in (None, "local") else " (is the folder shared with the workers?)")
+                    else:
+                        rows[cell.name] = summary_row(cell, [t["success"] for t in metrics["trials"]])
+                if error is not None:
+                    log.error("cell %s failed: %s", cell.name, error)
+                    if result.get("traceback"):
+                        log.debug("%s", result["traceback"])
+                timing[cell.name] = {"status": "ran" if error is None else "failed", "wall_s": result["wall_s"],
+                                     "error": error, **({"traceback": result["traceback"]} if error else {})}
+                bar.set_postfix(failed=sum(t["status"] == "failed" for t in timing.values()), refresh=False)
+                bar.update(1)
+
+    failed = [c.name for c in cells if timing[c.name]["status"] == "failed"]
+    ordered = [rows[c.name] for c in cells if c.name in rows]
+    _write_json(out / "summary.json", ordered)
+    _write_json(out / "timing.json", {
+        "executor": executor,
+        "workers": config.workers,
+        "total_wall_s": time.perf_counter() - wall0,
+        "ran": len(todo) - len(failed),
+        "resumed": len(cells) - len(todo),
+        "failed": failed,
+        "cells": [{"cell": c.name, **timing[c.name]} for c in cells],
+    })
+    return {"cells": len(cells), "ran": len(todo) - len(failed), "resumed": len(cells) - len(todo),
+            "failed": failed, "rows": ordered}

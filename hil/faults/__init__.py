@@ -1,0 +1,1 @@
+"""hil.faults: (to be described)."""

@@ -1,0 +1,1 @@
+"""hil.lockstep: (to be described)."""

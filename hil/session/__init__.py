@@ -1,0 +1,1 @@
+"""hil.session: (to be described)."""

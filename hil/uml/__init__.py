@@ -1,0 +1,1 @@
+"""hil.uml: (to be described)."""

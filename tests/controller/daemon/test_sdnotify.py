@@ -1,0 +1,333 @@
+"""sd_notify: the daemon's side (controller.daemon.sdnotify, controller.daemon.notify), with this test playing systemd.
+
+The fast tests listen on a datagram socket of their own (hil.dryrun.notify_listener) and check the
+messages, the ping period from WATCHDOG_USEC, WATCHDOG_PID, the abstract namespace, the no-op
+without NOTIFY_SOCKET and that nothing raises. One runs ``run_controller`` in this process
+against a light simulated leg (simulated ODrive axes on a fake plant, no PyBullet) on python-can's
+virtual bus. The end-to-end test (``vcan``) is the deployment dry run: the unit's own command line
+as a separate process, firmware-sim on vcan0 (inside User-Mode Linux where the kernel has no CAN),
+READY, regular pings and STOPPING after SIGTERM.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from controller.supervisor import Phase
+from controller.daemon.notify import DaemonNotify, phase_status
+from hil.dryrun.notify_listener import NotifyListener, parse_fields
+from controller.daemon.sdnotify import Notifier, socket_address, watchdog_usec_from
+
+
+
+@pytest.fixture
+def listener():
+    lst = NotifyListener().start()
+    yield lst
+    lst.stop()
+
+
+def wait_messages(lst: NotifyListener, n: int, timeout_s: float = 2.0):
+    deadline = time.monotonic() + timeout_s
+    while len(lst.snapshot()) < n and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return lst.snapshot()
+
+
+def test_without_notify_socket_everything_is_a_no_op():
+    n = Notifier({})
+    assert not n.enabled and n.ping_period_s is None
+    assert n.ready("x") is False and n.status("x") is False and n.stopping("x") is False
+    assert n.watchdog(0.0) is False and n.watchdog(100.0) is False
+    assert n.sent == n.errors == n.pings == 0
+    # WATCHDOG_USEC alone (no socket to send to) pings nothing either
+    assert Notifier({"WATCHDOG_USEC": "1000000"}).ping_period_s is None
+    n.close()
+
+
+def test_messages_are_key_value_lines_from_this_process(listener):
+    n = Notifier({"NOTIFY_SOCKET": listener.address})
+    assert n.enabled
+    assert n.ready("axes in closed loop")
+    assert n.status("walking\nsecond line")  # one line: a newline would start a new assignment
+    assert n.stopping("stopping (SIGTERM)")
+    got = wait_messages(listener, 3)
+    assert [m.fields for m in got] == [
+        {"READY": "1", "STATUS": "axes in closed loop"},
+        {"STATUS": "walking second line"},
+        {"STOPPING": "1", "STATUS": "stopping (SIGTERM)"},
+    ]
+    assert all(m.pid == os.getpid() for m in got)  # what NotifyAccess=main checks
+    assert n.sent == 3 and n.errors == 0
+    n.close()
+
+
+def test_abstract_and_path_addresses():
+    assert socket_address("@abc") == "\0abc" and socket_address("/run/x") == "/run/x"
+    assert NotifyListener().address.startswith("@")
+    folder = tempfile.mkdtemp(prefix="es-n-", dir="/tmp")  # short: AF_UNIX paths are limited to 107 bytes
+    path = f"{folder}/notify"
+    lst = NotifyListener(path).start()
+    try:
+        assert os.path.exists(path)
+        n = Notifier({"NOTIFY_SOCKET": path})
+        assert n.ready("ok")
+        assert wait_messages(lst, 1)[0].fields["READY"] == "1"
+        n.close()
+    finally:
+        lst.stop()
+        os.rmdir(folder)
+    assert not os.path.exists(path)
+
+
+def test_pings_every_half_of_watchdog_usec_on_the_callers_clock(listener):
+    n = Notifier({"NOTIFY_SOCKET": listener.address, "WATCHDOG_USEC": "200000"})
+    assert n.watchdog_usec == 200_000 and n.ping_period_s == pytest.approx(0.1)
+    sent = [t for t in np.arange(0.0, 1.0, 0.002) if n.watchdog(float(t))]  # a 500 Hz loop for 1 s
+    assert len(sent) == 10 and n.pings == 10
+    assert np.allclose(np.diff(sent), 0.1, atol=0.0021)  # never later than one tick past due
+    got = wait_messages(listener, 10)
+    assert len(got) == 10 and all(m.fields == {"WATCHDOG": "1"} for m in got)
+    n.close()
+
+
+def test_watchdog_pid_decides_who_pings(listener):
+    env = {"NOTIFY_SOCKET": listener.address, "WATCHDOG_USEC": "1000000"}
+    me = os.getpid()
+    assert watchdog_usec_from({**env, "WATCHDOG_PID": str(me)}, me) == 1_000_000
+    assert watchdog_usec_from(env, me) == 1_000_000  # unset: ours
+    assert watchdog_usec_from({**env, "WATCHDOG_PID": str(me + 1)}, me) is None  # a parent's, not ours
+    for bad in ("0", "-5", "soon", ""):
+        assert watchdog_usec_from({**env, "WATCHDOG_USEC": bad}, me) is None
+    assert watchdog_usec_from({**env, "WATCHDOG_PID": "x"}, me) is None
+    other = Notifier({**env, "WATCHDOG_PID": str(me + 1)})
+    assert other.enabled and other.ping_period_s is None and other.watchdog(0.0) is False
+    assert other.ready("still tells READY")  # only the pings belong to WATCHDOG_PID
+    other.close()
+
+
+def test_send_failures_are_counted_never_raised(caplog):
+    missing = f"/tmp/es-no-listener-{uuid.uuid4().hex[:8]}"
+    n = Notifier({"NOTIFY_SOCKET": missing, "WATCHDOG_USEC": "100000"})
+    assert n.enabled
+    assert n.ready("x") is False and n.watchdog(0.0) is False and n.watchdog(0.001) is False
+    assert n.errors == 3 and n.sent == 0 and n.pings == 0 and "failed" in n.last_error
+    assert sum("sd_notify" in r.message for r in caplog.records) == 1  # logged once, then counted
+    n.close()
+    odd = Notifier({"NOTIFY_SOCKET": "vsock:2:1234"})
+    assert not odd.enabled and odd.errors == 1 and odd.ready("x") is False
+    # a closed socket: still no exception into the caller
+    n2 = Notifier({"NOTIFY_SOCKET": "@es-nobody-" + uuid.uuid4().hex[:8]})
+    n2._sock.close()
+    assert n2.status("x") is False and n2.errors == 1
+
+
+def test_a_full_listener_does_not_block_the_sender():
+    deaf = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)  # bound, never reads
+    address = "@es-deaf-" + uuid.uuid4().hex[:8]
+    deaf.bind(socket_address(address))
+    try:
+        n = Notifier({"NOTIFY_SOCKET": address})
+        t0 = time.monotonic()
+        for _ in range(3000):
+            n.status("x" * 200)
+        assert time.monotonic() - t0 < 2.0
+        assert n.errors > 0 and n.sent > 0  # its queue filled: counted as errors, never a wait
+        n.close()
+    finally:
+        deaf.close()
+
+
+def test_daemon_notify_ready_once_at_closed_loop_status_on_phases_ping_in_fault(listener):
+    d = DaemonNotify(Notifier({"NOTIFY_SOCKET": listener.address, "WATCHDOG_USEC": "1000000"}))
+    d.tick(0.0)
+    for p in (Phase.WAIT_NODES, Phase.ARMING, Phase.RAMP, Phase.WALK):
+        d.phase(p)
+    d.phase(Phase.FAULT, "axis hip left closed loop")
+    d.tick(0.6)  # FAULT: the loop is alive and keeps the axes IDLE, so it keeps pinging
+    d.stopping("SIGTERM")
+    got = [m.fields for m in wait_messages(listener, 8)]
+    assert got[0] == {"WATCHDOG": "1"}
+    assert got[1] == {"STATUS": phase_status(Phase.WAIT_NODES)} and got[2] == {"STATUS": phase_status(Phase.ARMING)}
+    assert got[3] == {"READY": "1", "STATUS": phase_status(Phase.RAMP)}
+    assert got[4] == {"STATUS": "walking"}
+    assert got[5]["STATUS"].startswith("FAULT") and "hip left closed loop" in got[5]["STATUS"]
+    assert got[6] == {"WATCHDOG": "1"}
+    assert got[7]["STOPPING"] == "1" and "SIGTERM" in got[7]["STATUS"]
+    assert sum("READY" in m for m in got) == 1 and d.summary()["ready_sent"]
+    d.close()
+
+
+def test_parse_fields():
+    assert parse_fields(b"READY=1\nSTATUS=a=b\n\njunk") == {"READY": "1", "STATUS": "a=b"}
+
+
+# -- run_controller in this process, against a light simulated leg on the virtual bus -----------
+class LightLeg(threading.Thread):
+    """Simulated ODrive axes (hip node 0, knee node 1: the real firmware model) on a fake plant
+    of two inertias, and the sensor board, on python-can's virtual bus, stepped at 1 kHz of
+    wall-clock time (catching up when late)."""
+
+    def __init__(self, channel: str) -> None:
+        super().__init__(name="light-leg", daemon=True)
+        from firmware_sim.motor import MotorJoint, Transmission
+        from firmware_sim.node_host import NodeHost
+        from firmware_sim.odrive_axis import DriverConfig, SimOdriveAxis
+        from firmware_sim.sensor_board import SensorBoard, SensorBoardConfig
+        from tests.fakes import FakeJointPlant, FakeSensorSource
+
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.plant = FakeJointPlant({"hip": 0.0, "knee": -0.3}, inertia_kg_m2=0.01, damping_nm_s=0.05)
+        self.axes = [
+            SimOdriveAxis(DriverConfig(node_id=0, watchdog_timeout_s=0.1), MotorJoint(self.plant, "hip", Transmission())),
+            SimOdriveAxis(DriverConfig(node_id=1, watchdog_timeout_s=0.1),
+                          MotorJoint(self.plant, "knee", Transmission(direction=-1))),
+        ]
+        board = SensorBoard(SensorBoardConfig(), FakeSensorSource(range_value=None), np.random.default_rng(0))
+        self.host = NodeHost(self.bus, [*self.axes, board])
+        self.halt = threading.Event()
+
+    def run(self) -> None:
+        dt, t = 0.001, 0.0
+        t0 = time.monotonic()
+        while not self.halt.is_set():
+            now = time.monotonic() - t0
+            while t < now:
+                self.host.step(t, dt)
+                self.plant.step(dt)
+                t += dt
+            time.sleep(0.001)
+
+    def close(self) -> None:
+        self.halt.set()
+        self.join(timeout=5)
+        self.bus.shutdown()
+
+
+def test_run_controller_tells_systemd_ready_pings_and_stopping(listener, monkeypatch):
+    from controller.config import ControllerConfig
+    from controller.daemon.run import run_controller
+    from protocol import AxisState
+
+    channel = f"sdnotify-{uuid.uuid4().hex}"
+    leg = LightLeg(channel)
+    leg.start()
+    monkeypatch.setenv("NOTIFY_SOCKET", listener.address)
+    monkeypatch.setenv("WATCHDOG_USEC", "200000")  # a ping every 0.1 s
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    try:
+        final = run_controller({"interface": "virtual", "channel": channel}, ControllerConfig(), duration_s=3.0)
+    finally:
+        leg.close()
+    got = listener.snapshot()
+    ready = [m for m in got if m.has("READY", "1")]
+    assert len(ready) == 1 and "closed loop" in ready[0].fields["STATUS"], [m.fields for m in got]
+    statuses = [m.fields["STATUS"] for m in got if "STATUS" in m.fields and "READY" not in m.fields]
+    assert phase_status(Phase.ARMING) in statuses and "walking" in statuses  # (WAIT_NODES may end in the first tick)
+    assert not any(s.startswith("FAULT") for s in statuses), statuses
+    pings = [m.t_s for m in got if m.has("WATCHDOG", "1")]
+    assert len(pings) >= 15  # 3 s at 0.1 s: about 30 on a quiet machine
+    assert max(np.diff(pings)) < 0.2  # never as long as the watchdog limit: systemd would not kill it
+    assert got[-1].has("STOPPING", "1") and all(m.pid == os.getpid() for m in got)
+    assert final["stopped_by"] == "duration" and final["phase"] == "walk"
+    assert final["sd_notify"]["errors"] == 0 and final["sd_notify"]["ready_sent"] is True
+    assert final["sd_notify"]["pings"] == len(pings)
+    assert all(a.state is AxisState.IDLE for a in leg.axes)  # the clean stop's IDLE reached the drivers
+    assert not any(int(a.errors) for a in leg.axes)  # on our word, not a watchdog trip
+
+
+# -- end to end: the deployment dry run (vcan) ---------------------------------------------------
+@pytest.mark.vcan
+def test_the_deployment_dry_run_against_the_simulated_leg(tmp_path):
+    """systemd's part, played in full: the unit's own ExecStart (only --config swapped for
+    configs/sim.toml) as a separate process against firmware-sim on vcan0, NOTIFY_SOCKET and
+    WATCHDOG_USEC from the unit; READY, regular pings, STOPPING after SIGTERM, exit 0."""
+    from hil.uml.runner import VcanUnavailable, where
+
+    try:
+        where("auto")
+    except VcanUnavailable as exc:
+        pytest.fail(f"this test needs a SocketCAN vcan0: {exc}", pytrace=False)
+    out = tmp_path / "dryrun"
+    seconds = 6.0
+    done = subprocess.run([sys.executable, "-m", "hil.cli.main", "dryrun", "--seconds", str(seconds), "--out", str(out),
+                           "--quiet"], capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
+    path = out / "dryrun.json"
+    assert path.exists(), f"no report (exit {done.returncode}):\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    report = json.loads(path.read_text())
+    failed = [c for c in report["checks"] if not c["ok"]]
+    log = (out / "controller.log").read_text()[-3000:] if (out / "controller.log").exists() else ""
+    assert done.returncode == 0 and report["ok"] and not failed, f"{done.stdout}\n{failed}\n{report['error']}\n{log}"
+    notes = report["notifications"]
+    pids = {n["pid"] for n in notes}
+    assert len(pids) == 1  # all from the daemon's main pid (NotifyAccess=main)
+    ready = next(i for i, n in enumerate(notes) if n.get("READY") == "1")
+    stopping = next(i for i, n in enumerate(notes) if n.get("STOPPING") == "1")
+    assert ready < stopping and "closed loop" in notes[ready]["STATUS"]
+    assert report["watchdog_usec"] == 1_000_000
+    pings = [n["t_s"] for n in notes[ready:stopping] if n.get("WATCHDOG") == "1"]
+    assert len(pings) >= seconds / 0.5 * 0.5  # every 0.5 s: about 12 in 6 s
+    assert max(np.diff(pings)) < 1.0  # never a gap systemd would have killed it for
+    assert any(n.get("STATUS") == "walking" for n in notes[ready:stopping])
+    assert report["final"]["stopped_by"] == "SIGTERM" and report["final"]["steps"] > 0
+    assert report["final"]["sd_notify"]["errors"] == 0
+    assert report["exec_start"][-2:] == ["--config", "/etc/elegant-stepping/leg.toml"]
+    assert report["ran"][-2] == "--config" and report["ran"][-1].endswith(".toml")
+
+
+def test_a_stuck_loop_stops_pinging_the_drivers_stop_the_leg_and_fault_keeps_pinging(listener, monkeypatch):
+    """The chain of docs/deploy.md section 7, in this process: the loop stalls 0.4 s while walking;
+    no ping comes during the stall (they come from the loop, not from a thread); the drivers'
+    watchdogs (0.1 s) disarm both axes; the supervisor then sees them out of closed loop: FAULT,
+    latched; the loop, alive again, keeps pinging in FAULT."""
+    from controller.config import ControllerConfig
+    from controller.loop import ControlLoop
+    from controller.daemon.run import run_controller
+    from protocol import AxisError, AxisState
+
+    original = ControlLoop.tick
+    stall: dict[str, float] = {}
+
+    def tick(self, now_s: float) -> None:
+        original(self, now_s)
+        if "from" not in stall and self.phase is Phase.WALK:
+            stall.setdefault("walk", now_s)
+            if now_s - stall["walk"] > 0.5:
+                stall["from"] = time.monotonic()
+                time.sleep(0.4)  # stuck
+                stall["to"] = time.monotonic()
+
+    monkeypatch.setattr(ControlLoop, "tick", tick)
+    channel = f"sdnotify-{uuid.uuid4().hex}"
+    leg = LightLeg(channel)
+    leg.start()
+    monkeypatch.setenv("NOTIFY_SOCKET", listener.address)
+    monkeypatch.setenv("WATCHDOG_USEC", "200000")
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    try:
+        final = run_controller({"interface": "virtual", "channel": channel}, ControllerConfig(), duration_s=4.0)
+    finally:
+        leg.close()
+    assert "to" in stall, "the loop never walked"
+    got = listener.snapshot()
+    pings = [m.t_s for m in got if m.has("WATCHDOG", "1")]
+    assert not [t for t in pings if stall["from"] + 0.05 < t < stall["to"]]  # silent while stuck
+    assert any(b - a >= 0.35 for a, b in zip(pings, pings[1:]))  # longer than WATCHDOG_USEC/2: systemd would act
+    assert all(int(a.errors) & AxisError.WATCHDOG_TIMER_EXPIRED for a in leg.axes)  # the drivers stopped the leg
+    assert all(a.state is AxisState.IDLE for a in leg.axes)
+    fault = next(m for m in got if m.fields.get("STATUS", "").startswith("FAULT"))
+    assert fault.t_s >= stall["to"] - 0.01 and "closed loop" in fault.fields["STATUS"]
+    assert len([t for t in pings if t > fault.t_s]) >= 5  # alive and safe in FAULT: still pinging
+    assert final["phase"] == "fault" and got[-1].has("STOPPING", "1")

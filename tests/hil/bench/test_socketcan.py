@@ -1,0 +1,154 @@
+"""``bench --hil``: the HIL figures beside their floor.
+
+The figure computations are checked on synthetic tick times; the session itself runs on a real
+vcan0 (natively, else inside User-Mode Linux) and FAILS with what to install where neither can be
+had (deselect on purpose with -m 'not vcan'). No timing threshold is asserted: only structure and
+sanity.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from array import array
+
+import pytest
+
+from hil.bench.socketcan import FIGURES, read_ticks, side_by_side, tick_figures
+from controller.daemon.pacing import Pacer
+from hil.uml.runner import VcanUnavailable, where
+
+P = 0.002
+
+
+def test_perfect_ticks_have_no_jitter_and_no_late_ticks():
+    f = tick_figures([10.0 + k * P for k in range(1001)], P)
+    assert f["ticks"] == 1001 and f["periods"] == 1000
+    assert f["late_ticks"] == 0 and f["late_per_10k"] == 0.0
+    assert f["period_jitter_us"]["median"] == pytest.approx(0.0, abs=1e-6)
+    assert f["period_jitter_us"]["max"] == pytest.approx(0.0, abs=1e-6)
+    assert f["span_s"] == pytest.approx(2.0)
+
+
+def test_late_ticks_per_10k_and_nearest_rank_percentiles():
+    # 1000 periods: 980 exact, 15 of +100 us (not late), 5 of 3 periods (late: above 1.5 periods)
+    periods = [P] * 980 + [P + 100e-6] * 15 + [3 * P] * 5
+    times = [0.0]
+    for p in periods:
+        times.append(times[-1] + p)
+    f = tick_figures(times, P, late_factor=1.5)
+    assert f["late_ticks"] == 5 and f["late_per_10k"] == pytest.approx(50.0)
+    j = f["period_jitter_us"]
+    assert j["median"] == pytest.approx(0.0, abs=1e-6)
+    assert j["p99"] == pytest.approx(100.0, abs=1e-3)  # rank 990 of 1000 lies in the +100 us group
+    assert j["max"] == pytest.approx(4000.0, abs=1e-3)
+    assert f["max_period_us"] == pytest.approx(6000.0, abs=1e-3)
+
+
+def test_the_figures_agree_with_the_pacers_own_count():
+    class Clock:
+        t = 50.0
+
+        def __call__(self):
+            return self.t
+
+        def sleep(self, s):
+            self.t += s + 30e-6
+
+    c = Clock()
+    pacer = Pacer(P, clock=c, sleep=c.sleep, late_factor=1.5)
+    times = []
+    for k in range(2000):
+        times.append(pacer.wait())
+        if k % 97 == 0:
+            c.t += 0.0041  # an overrun: late, periods skipped
+    ours, its = tick_figures(times, P, 1.5), pacer.summary()
+    assert ours["late_ticks"] == its["late_ticks"] > 0
+    assert ours["ticks"] == its["ticks"]
+    for q in ("median", "p99"):  # the pacer keeps a 1 us histogram
+        assert ours["period_jitter_us"][q] == pytest.approx(its["period_jitter_us"][q], abs=1.0)
+
+
+def test_too_few_ticks_give_none_not_an_error():
+    f = tick_figures([1.0], P)
+    assert f["periods"] == 0 and f["late_per_10k"] is None and f["period_jitter_us"]["p99"] is None
+
+
+def test_side_by_side_ratio_and_excess():
+    assert side_by_side(300.0, 100.0) == {"hil": 300.0, "floor": 100.0, "ratio": 3.0, "excess": 200.0}
+    assert side_by_side(5.0, 0.0)["ratio"] is None and side_by_side(5.0, 0.0)["excess"] == 5.0
+    assert side_by_side(None, 1.0) == {"hil": None, "floor": 1.0, "ratio": None, "excess": None}
+
+
+def test_read_ticks_reads_the_controllers_format_from_a_time_on(tmp_path):
+    a = array("d", [1.0, 2.0, 1.002, 0.0, 1.004, 1.0])
+    path = tmp_path / "c.ticks"
+    path.write_bytes(a.tobytes() + b"\x00" * 5)  # a write cut short at the end is ignored
+    assert read_ticks(path) == [1.0, 1.002, 1.004]
+    assert read_ticks(path, since_s=1.001) == [1.002, 1.004]
+
+
+def _cheap_bench(monkeypatch):
+    import hil.bench.run as bench
+
+    monkeypatch.setattr(bench, "bench_bare_physics", lambda s: {"rtf": 2.0})
+    monkeypatch.setattr(bench, "bench_lockstep", lambda s, seed=0: {"rtf": 1.0, "tick_cost_us": {}})
+    monkeypatch.setattr(bench, "bench_codec", lambda: {})
+    monkeypatch.setattr(bench, "bench_bus_load", lambda s, seed=0: {})
+    monkeypatch.setattr(bench, "bench_learning", lambda n, seed=0: {})
+
+
+def test_without_vcan_the_hil_section_says_so_and_only_hil_fails(monkeypatch, tmp_path):
+    import hil.uml.runner as uml
+    from hil.cli.main import main
+
+    _cheap_bench(monkeypatch)
+
+    def nowhere(mode="auto", channel="vcan0"):
+        raise VcanUnavailable(uml.instruction(channel))
+
+    monkeypatch.setattr(uml, "where", nowhere)
+    out = tmp_path / "b.json"
+    assert main(["bench", "--json", str(out)]) == 0
+    h = json.loads(out.read_text())["hil"]
+    assert h["available"] is False and h["ran"] is False and "user-mode-linux" in h["install"]
+    assert main(["bench", "--hil", "--hil-seconds", "1", "--json", str(out)]) != 0
+    h = json.loads(out.read_text())["hil"]
+    assert h["available"] is False and "apt-get install -y user-mode-linux kmod" in h["error"] + h["install"]
+
+
+@pytest.fixture(scope="module")
+def vcan_place() -> str:
+    try:
+        return where("auto")
+    except VcanUnavailable as exc:
+        pytest.fail(f"this test needs a SocketCAN vcan0: {exc}", pytrace=False)
+
+
+@pytest.mark.vcan
+def test_bench_hil_reports_each_figure_beside_its_floor(vcan_place, tmp_path):
+    from hil.cli.main import main
+
+    out = tmp_path / "bench.json"
+    rc = main(["bench", "--hil", "--hil-seconds", "2", "--seconds", "1", "--learn-trials", "1", "--json", str(out)])
+    h = json.loads(out.read_text())["hil"]
+    assert rc == 0, h.get("error")
+    assert h["available"] and h["ran"] and h["where"] == vcan_place
+    if vcan_place == "uml":
+        assert h["uml"]["exit_code"] == 0 and 0 < h["uml"]["boot_to_session_s"] < h["uml"]["wall_s"]
+    assert set(h["figures"]) == set(FIGURES)
+    for name, fig in h["figures"].items():
+        assert fig["hil"] is not None and fig["floor"] is not None, name
+        if fig["floor"] > 0:
+            assert fig["ratio"] == pytest.approx(fig["hil"] / fig["floor"]), name
+        assert fig["excess"] == pytest.approx(fig["hil"] - fig["floor"]), name
+    d = h["detail"]
+    hil, loop, echo = d["hil"], d["floor_loop"], d["floor_echo"]
+    assert hil["error"] is None and hil["exit_codes"] == {"controller": 0, "firmware_sim": 0}
+    assert "walk" in hil["phases"] and hil["watchdog_trips"] == 0
+    assert hil["ticks"]["ticks"] > 0 and loop["ticks"] > 0
+    assert all(math.isfinite(x) and x >= 0 for x in (hil["ticks"]["span_s"], loop["span_s"]))
+    j = loop["period_jitter_us"]
+    assert 0 <= j["median"] <= j["p99"] <= j["max"]
+    assert hil["command_to_feedback_us"]["n"] > 0 and echo["command_to_feedback_us"]["n"] > 0
+    assert echo["answered"] > 0 and echo["sender"]["sent"] > 0

@@ -1,0 +1,278 @@
+"""The sweep command: summary rows, resumability, failed cells, the report, pool vs Dask."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import pytest
+
+from hil.analysis import report
+from hil.cli.main import main
+from hil.experiments.sweep import Cell, SweepConfig, parse_seeds, run_sweep, summary_row
+
+T, F = True, False
+
+
+# ---- rows from synthetic trial lists -------------------------------------------------------------------------
+
+
+def test_row_of_a_150_trial_run():
+    # 12 failures, then success except trials 120 and 130 (1-based); the window of trials 12-21
+    # holds 9 successes, so 11 trials ran before it
+    success = [F] * 12 + [T] * 138
+    success[119] = success[129] = F
+    row = summary_row(Cell("learner", 0.08, 3, 150), success)
+    assert row == {"method": "learner", "obstacle_height_m": 0.08, "seed": 3, "trials": 150,
+                   "trials_to_criterion": 11, "mistakes_after_100": 2, "success_last_50": 48 / 50,
+                   "success_rate": 136 / 150, "cell": "learner_h80mm_s3"}
+
+
+def test_criterion_needs_9_of_10_in_a_window():
+    assert summary_row(Cell("rl", 0.06, 0, 13), [F, F, F, T, T, T, T, F, T, T, T, T, T])["trials_to_criterion"] == 3
+    eight_of_ten = [T, T, F, T, T, T, F, T, T, T] * 3
+    assert summary_row(Cell("rl", 0.06, 0, 30), eight_of_ten)["trials_to_criterion"] is None
+    assert summary_row(Cell("rl", 0.06, 0, 9), [T] * 9)["trials_to_criterion"] is None  # no full window
+
+
+def test_mistakes_after_100_and_the_last_50():
+    assert summary_row(Cell("none", 0.1, 0, 100), [F] * 100)["mistakes_after_100"] is None
+    row = summary_row(Cell("none", 0.1, 0, 101), [T] * 100 + [F])
+    assert row["mistakes_after_100"] == 1 and row["success_last_50"] == pytest.approx(49 / 50)
+    short = summary_row(Cell("none", 0.1, 0, 4), [T, F, F, F])
+    assert short["success_last_50"] == 0.25 and short["success_rate"] == 0.25
+    with pytest.raises(ValueError, match="success"):
+        summary_row(Cell("none", 0.1, 0, 1), [])
+
+
+def test_a_mixed_cell_names_all_its_heights():
+    row = summary_row(Cell("context", (0.06, 0.1), 1, 2), [T, F])
+    assert row["obstacle_height_m"] == [0.06, 0.1] and row["cell"] == "context_h60mm+100mm_s1"
+
+
+# ---- configuration and command-line errors ---------------------------------------------------------------------
+
+
+def test_seeds_lists_and_ranges():
+    assert parse_seeds("0-2,7") == (0, 1, 2, 7) and parse_seeds("4") == (4,)
+    for bad in ("3-1", "a", "1,,2"):
+        with pytest.raises(ValueError, match="seeds"):
+            parse_seeds(bad)
+
+
+@pytest.mark.parametrize("kwargs,field", [
+    ({"seeds": (0, 0)}, "seeds"), ({"seeds": (-1,)}, "seeds"), ({"obstacle_heights_m": (0.02,)}, "obstacle_heights_m"),
+    ({"methods": ("learner", "magic")}, "methods"), ({"trials": 0}, "trials"), ({"workers": 0}, "workers"),
+    ({"methods": ()}, "methods"),
+])
+def test_bad_config_names_the_field(tmp_path, kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        SweepConfig(out_dir=tmp_path, **kwargs)
+
+
+@pytest.mark.parametrize("argv,field", [
+    (["--seeds", "2-1"], "seeds"), (["--obstacle-heights-m", "0.06,x"], "obstacle_heights_m"),
+    (["--methods", "learner,magic"], "methods"), (["--trials", "0"], "trials"),
+])
+def test_bad_sweep_arguments_get_a_clear_error(tmp_path, capsys, argv, field):
+    assert main(["sweep", "--out", str(tmp_path / "s"), "--quiet", *argv]) == 2
+    assert field in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_cell_checks_the_config_of_its_metrics():
+    cell = Cell("learner", 0.06, 2, 2)
+    good = {"config": {"method": "learner", "seed": 2, "trials": 2, "obstacle_height_m": 0.06,
+                       "obstacle_heights_m": []}, "trials": [{"success": True}, {"success": False}]}
+    assert cell.mismatch(good) is None
+    assert "trials" in cell.mismatch({**good, "config": {**good["config"], "trials": 3}})
+    assert "obstacle_height_m" in cell.mismatch({**good, "config": {**good["config"], "obstacle_height_m": 0.1}})
+    assert cell.mismatch({"config": {}}) is not None and cell.mismatch([]) is not None
+    mixed = Cell("learner", (0.06, 0.1), 2, 2)
+    assert "obstacle_heights_m" in mixed.mismatch(good)
+
+
+# ---- the report, from rows -------------------------------------------------------------------------------------
+
+
+def fake_sweep(out: Path, outcomes: dict[tuple[str, float, int], list[bool]], methods, heights, seeds) -> list[dict]:
+    """A sweep folder with synthetic cells, as run_sweep would leave it."""
+    config = SweepConfig(out_dir=out, methods=methods, obstacle_heights_m=heights, seeds=seeds,
+                         trials=len(next(iter(outcomes.values()))))
+    rows = []
+    for cell in config.cells():
+        success = outcomes[(cell.method, cell.obstacle_height_m, cell.seed)]
+        folder = cell.folder(out)
+        folder.mkdir(parents=True)
+        (folder / "metrics.json").write_text(json.dumps({"config": {}, "trials": [{"success": s} for s in success]}))
+        rows.append(summary_row(cell, success))
+    (out / "config.json").write_text(json.dumps(config.to_json()))
+    (out / "summary.json").write_text(json.dumps(rows))
+    return rows
+
+
+def test_headline_table_sentences_and_figures_come_from_the_rows(tmp_path):
+    n = 120
+    learner = {0: [F] * 5 + [T] * (n - 5), 1: [F] * 9 + [T] * (n - 10) + [F]}
+    rl = {0: [F] * 30 + [T] * (n - 30), 1: ([F, T] * n)[:n]}  # seed 1 never reaches the criterion
+    none = {0: ([T, F, F] * n)[:n], 1: ([F, T, F] * n)[:n]}
+    oracle = {0: [T] * n, 1: [T] * (n - 1) + [F]}
+    outcomes = {}
+    for method, by_seed in (("learner", learner), ("none", none), ("oracle", oracle), ("rl", rl)):
+        for seed, s in by_seed.items():
+            outcomes[(method, 0.06, seed)] = s
+            outcomes[(method, 0.1, seed)] = [not x for x in s] if method == "none" else s
+    out = tmp_path / "sweep"
+    rows = fake_sweep(out, outcomes, ("learner", "none", "oracle", "rl"), (0.1, 0.06), (0, 1))
+    assert [(r["method"], r["obstacle_height_m"], r["seed"]) for r in rows][:4] == [
+        ("learner", 0.06, 0), ("learner", 0.06, 1), ("learner", 0.1, 0), ("learner", 0.1, 1)]
+
+    table = report.headline_table(rows)
+    assert [(e["obstacle_height_m"], e["method"]) for e in table] == [
+        (h, m) for h in (0.06, 0.1) for m in ("learner", "none", "oracle", "rl")]
+    e = {(e["obstacle_height_m"], e["method"]): e for e in table}
+    # a window may start on the last failure: 9 of 10 is enough
+    assert e[0.06, "learner"]["trials_to_criterion_mean"] == 6.0
+    assert (e[0.06, "learner"]["trials_to_criterion_min"], e[0.06, "learner"]["trials_to_criterion_max"]) == (4, 8)
+    assert e[0.06, "learner"]["mistakes_after_100_mean"] == 0.5
+    assert e[0.06, "learner"]["seeds_without_mistakes_after_100"] == 1
+    assert e[0.06, "learner"]["success_last_50_mean"] == pytest.approx((1.0 + 49 / 50) / 2)
+    assert e[0.06, "rl"]["never_reached"] == 1 and e[0.06, "rl"]["trials_to_criterion_mean"] == 29
+    assert e[0.06, "none"]["trials_to_criterion_mean"] is None and e[0.06, "none"]["never_reached"] == 2
+    assert e[0.06, "oracle"]["success_rate_mean"] == pytest.approx((1.0 + (n - 1) / n) / 2)
+
+    result = report.write_report(out)
+    assert result["table"] == table and result["missing"] == []
+    md = (out / "report.md").read_text()
+    assert "## Obstacle 0.06 m" in md and "## Obstacle 0.1 m" in md
+    assert "| learner | 2 | 6.0 (4–8) | 0 | 0.50 | 1 | 99% |" in md
+    assert "| rl | 2 | 29.0 (29–29) | 1 |" in md
+    assert "The learner (Elegant Stepping) reached the criterion after 6.0 trials on average (range 4–8" in md
+    assert "made 0.50 mistakes after trial 100 on average (1 of 2 seeds made none)" in md
+    assert "1 of 2 seeds never reached it" in md
+    assert "Without adaptation (none), the leg never reached the criterion on any of its 2 seeds" in md
+    assert f"The oracle succeeded in {(1 + (n - 1) / n) / 2:.0%} of all trials" in md
+    assert "--seeds 0,1 --obstacle-heights-m 0.1,0.06 --methods learner,none,oracle,rl --trials 120" in md
+    for name in ("success_curves_60mm", "success_curves_100mm", "criterion_bars"):
+        assert f"](figures/{name}.png)" in md
+        for ext in ("png", "svg"):
+            assert (out / "figures" / f"{name}.{ext}").stat().st_size > 1000
+
+    # the curves: running 10-trial success, mean and t-interval over the seeds
+    oracle_curve = result["curves"]["0.06 m"]["oracle"]
+    assert oracle_curve["seeds"] == 2 and oracle_curve["mean"][:3] == [1.0, 1.0, 1.0]
+    assert oracle_curve["mean"][-1] == pytest.approx(0.95)  # seed 1's last window has one failure in 10
+    assert oracle_curve["low"][-1] < 0.95 < oracle_curve["high"][-1]
+    learner_curve = result["curves"]["0.06 m"]["learner"]
+    assert learner_curve["mean"][0] == 0.0 and learner_curve["trial"] == list(range(1, n + 1))
+    bars = result["bars"]
+    assert bars["methods"] == ["learner", "none", "oracle", "rl"] and bars["heights"] == ["0.06 m", "0.1 m"]
+    assert bars["trials_to_criterion_mean"][0] == [6.0, None, 0.0, 29.0]
+    assert bars["success_last_50_mean"][1][1] == e[0.1, "none"]["success_last_50_mean"]
+
+    # the report alone, on the existing folder, through the command line
+    (out / "report.md").unlink()
+    assert main(["sweep", "--out", str(out), "--report-only"]) == 0
+    assert (out / "report.md").read_text() == md
+
+
+def test_report_only_on_a_folder_that_is_not_a_sweep(tmp_path, capsys):
+    assert main(["sweep", "--out", str(tmp_path), "--report-only"]) == 2
+    assert "config.json" in capsys.readouterr().err
+
+
+# ---- real runs (small) -----------------------------------------------------------------------------------------
+
+
+def test_a_second_run_runs_nothing_and_a_corrupt_or_mismatched_cell_runs_again(tmp_path, caplog, capsys):
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--out", str(out), "--seeds", "0", "--obstacle-heights-m", "0.07", "--methods", "learner,none",
+            "--trials", "2", "--workers", "2", "--quiet"]
+    assert main(argv) == 0
+    summary = (out / "summary.json").read_text()
+    rows = json.loads(summary)
+    assert [(r["method"], r["seed"], r["trials"]) for r in rows] == [("learner", 0, 2), ("none", 0, 2)]
+    timing = json.loads((out / "timing.json").read_text())
+    assert [c["status"] for c in timing["cells"]] == ["ran", "ran"] and timing["executor"] == "pool"
+    assert "wall_s" not in summary
+    assert "2 run, 0 resumed" in capsys.readouterr().err
+
+    config = SweepConfig(out_dir=out, seeds=(0,), obstacle_heights_m=(0.07,), methods=("learner", "none"), trials=2,
+                         workers=2)
+    again = run_sweep(config, progress=False)
+    assert (again["ran"], again["resumed"], again["failed"]) == (0, 2, [])
+    assert (out / "summary.json").read_text() == summary
+
+    (out / "cells" / "learner_h70mm_s0" / "metrics.json").write_text('{"config": {"method": "lear')
+    metrics = json.loads((out / "cells" / "none_h70mm_s0" / "metrics.json").read_text())
+    metrics["config"]["trials"] = 3
+    (out / "cells" / "none_h70mm_s0" / "metrics.json").write_text(json.dumps(metrics))
+    with caplog.at_level(logging.WARNING, logger="hil.experiments.sweep"):
+        third = run_sweep(config, progress=False)
+    assert (third["ran"], third["resumed"], third["failed"]) == (2, 0, [])
+    warnings = " ".join(r.getMessage() for r in caplog.records)
+    assert "corrupt" in warnings and "does not match" in warnings and "trials" in warnings
+    assert (out / "summary.json").read_text() == summary  # the runs are deterministic per seed
+
+
+def test_a_failing_cell_is_named_and_the_finished_ones_are_kept(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    (out / "cells").mkdir(parents=True)
+    (out / "cells" / "learner_h80mm_s1").write_text("a file where the cell's folder should go")
+    argv = ["sweep", "--out", str(out), "--seeds", "0-1", "--obstacle-heights-m", "0.08", "--methods", "learner",
+            "--trials", "1", "--workers", "2", "--quiet"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "1 cells failed: learner_h80mm_s1" in err
+    assert [r["cell"] for r in json.loads((out / "summary.json").read_text())] == ["learner_h80mm_s0"]
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["failed"] == ["learner_h80mm_s1"]
+    failed = timing["cells"][1]
+    assert failed["status"] == "failed" and "Error" in failed["error"] and "Traceback" in failed["traceback"]
+    assert "Incomplete: 1 cells have no result** (learner_h80mm_s1)" in (out / "report.md").read_text()
+
+    (out / "cells" / "learner_h80mm_s1").unlink()
+    assert main(argv) == 0
+    assert json.loads((out / "timing.json").read_text())["resumed"] == 1
+    assert len(json.loads((out / "summary.json").read_text())) == 2
+    assert "Incomplete" not in (out / "report.md").read_text()
+
+
+def test_mixed_heights_are_one_scenario(tmp_path):
+    out = tmp_path / "sweep"
+    assert main(["sweep", "--out", str(out), "--seeds", "4", "--obstacle-heights-m", "0.06,0.10", "--mixed-heights",
+                 "--methods", "learner", "--trials", "4", "--workers", "1", "--quiet"]) == 0
+    [row] = json.loads((out / "summary.json").read_text())
+    assert row["obstacle_height_m"] == [0.06, 0.1] and row["cell"] == "learner_h60mm+100mm_s4"
+    metrics = json.loads((out / "cells" / row["cell"] / "metrics.json").read_text())
+    assert metrics["config"]["obstacle_heights_m"] == [0.06, 0.1]
+    assert {t["obstacle_height_m"] for t in metrics["trials"]} <= {0.06, 0.1}
+    assert "## Obstacle mixed 0.06/0.1 m" in (out / "report.md").read_text()
+
+
+def test_cells_run_on_a_dask_scheduler_given_by_address(tmp_path):
+    import distributed
+
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        address = cluster.scheduler_address
+        config = SweepConfig(out_dir=tmp_path, seeds=(2,), obstacle_heights_m=(0.08,), methods=("none",), trials=1,
+                             workers=1, dask=address)
+        stats = run_sweep(config, progress=False)
+    assert (stats["ran"], stats["failed"]) == (1, [])
+    assert json.loads((tmp_path / "timing.json").read_text())["executor"] == f"dask {address}"
+    assert (tmp_path / "cells" / "none_h80mm_s2" / "metrics.json").is_file()
+
+
+@pytest.mark.slow
+def test_pool_and_dask_local_give_the_same_summary(tmp_path):
+    """The issue's done criterion: 3 seeds x 2 heights x 4 methods, on the pool and on --dask local."""
+    common = ["--seeds", "0-2", "--obstacle-heights-m", "0.06,0.10", "--methods", "learner,none,oracle,rl",
+              "--trials", "3", "--workers", "2", "--quiet"]
+    assert main(["sweep", "--out", str(tmp_path / "pool"), *common]) == 0
+    assert main(["sweep", "--out", str(tmp_path / "dask"), "--dask", "local", *common]) == 0
+    pool = (tmp_path / "pool" / "summary.json").read_text()
+    assert pool == (tmp_path / "dask" / "summary.json").read_text()
+    rows = json.loads(pool)
+    assert len(rows) == 24 and [r["method"] for r in rows[::6]] == ["learner", "none", "oracle", "rl"]
+    assert json.loads((tmp_path / "dask" / "timing.json").read_text())["executor"] == "dask local"
