@@ -7,7 +7,8 @@
 # Steps (each printed before it runs):
 #   1. the system user and group 'elegant-stepping' (no login, home /var/lib/elegant-stepping);
 #   2. a virtual environment in /opt/elegant-stepping/venv with this package installed into it,
-#      and /usr/local/bin/elegant-stepping pointing at its command;
+#      (the core package only: the leg needs no simulator or plotting), and
+#      /usr/local/bin/elegant-stepping-leg pointing at its command;
 #   3. the unit /etc/systemd/system/elegant-stepping-controller.service, docs/deploy.md under
 #      /usr/local/share/doc/elegant-stepping/, configs/sim.toml under /usr/local/share/elegant-stepping/
 #      (for 'elegant-stepping dryrun' on this machine);
@@ -68,7 +69,7 @@ main() {
   host "$venv/bin/python" -m pip install --upgrade pip
   host "$venv/bin/python" -m pip install "$repo"
   run install -d -m 0755 "$root/usr/local/bin"
-  run ln -sfn "$venv/bin/elegant-stepping" "$root/usr/local/bin/elegant-stepping"
+  run ln -sfn "$venv/bin/elegant-stepping-leg" "$root/usr/local/bin/elegant-stepping-leg"
   # 3. the unit and its documentation
   run install -d -m 0755 "$root/etc/systemd/system" "$root/usr/local/share/doc/elegant-stepping"
   run install -m 0644 "$here/$unit" "$root/etc/systemd/system/$unit"
@@ -89,7 +90,7 @@ main() {
   if [ "$enable" = 1 ]; then
     host systemctl enable "$unit"
   fi
-  echo "install.sh: done. Calibrate (docs/deploy.md), check with 'elegant-stepping dryrun', then: systemctl start $unit"
+  echo "install.sh: done. Calibrate (docs/deploy.md), check the unit on a development machine with 'elegant-stepping dryrun' (docs/deploy.md), bring the leg up with 'elegant-stepping-leg bringup', then: systemctl start $unit"
 }
 
 # Only when executed, never when sourced.

@@ -1,7 +1,7 @@
 """The simulated leg as hardware: the plant plus its CAN nodes, stepped one physics period at a time.
 
 Hip and knee are ODrive axes (nodes 0 and 1 by default) behind 6:1 transmissions (the knee's
-mounted reversed), the sensor board is node 16. One :meth:`SimulatedLeg.step` is one physics
+mounted reversed), the sensor board is node :data:`protocol.SENSOR_BOARD_NODE_ID`. One :meth:`SimulatedLeg.step` is one physics
 period: frames waiting on the bus are handled, the drivers' loops compute torques, the physics
 advances, and the cyclic frames that came due are sent.
 """

@@ -160,8 +160,8 @@ class DriverConfig:
     ==========================  =============  ================  ======================================
     Field                       Unit           Default           Meaning
     ==========================  =============  ================  ======================================
-    ``node_id``                 –              (required)        CANSimple node id, 0..63, not 16
-                                                                 (the sensor board's)
+    ``node_id``                 –              (required)        CANSimple node id, 0..63, not
+                                                                 the sensor board's
     ``pos_gain``                (rev/s)/rev    ``30.0``          position loop proportional gain
     ``vel_gain``                N·m/(rev/s)    ``0.25``          velocity loop proportional gain
     ``vel_integrator_gain``     N·m/rev        ``0.3``           velocity loop integral gain
@@ -178,11 +178,10 @@ class DriverConfig:
                                                                  more than this outside
                                                                  [pos_min_rev, pos_max_rev] is a
                                                                  POSITION_LIMIT_VIOLATION (disarm).
-                                                                 0.02 rev is 0.021 rad (1.2 deg) at
-                                                                 the joint behind 6:1: 2.6 times the
-                                                                 worst overshoot measured driving a
-                                                                 rig joint into its URDF stop at full
-                                                                 torque (0.0076 rev)
+                                                                 0.02 rev is 0.021 rad at the joint
+                                                                 behind 6:1: well above the overshoot
+                                                                 of a rig joint driven into its URDF
+                                                                 stop at full torque
     ``fw_version``              –              ``(0, 6, 10)``    (major, minor, revision) in
                                                                  Get_Version
     ``hw_version``              –              ``(3, 6, 56)``    (major, minor, variant) in

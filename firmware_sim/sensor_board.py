@@ -1,4 +1,5 @@
-"""Our sensor board (CAN node 16): a noisy range finder with a vertical profile, and two contact switches.
+"""Our sensor board (CAN node ``SENSOR_BOARD_NODE_ID``): a noisy range finder with a vertical profile, and two
+contact switches.
 
 :class:`SensorBoard` samples a :class:`SensorSource` (the plant's ray cast and contact tests)
 and publishes, with the layouts of the DBC:
@@ -112,7 +113,7 @@ class SensorBoardConfig:
 
 
 class SensorBoard:
-    """The sensor board as a CAN node (``node_id`` 16).
+    """The sensor board as a CAN node (``node_id``: the bus contract's ``SENSOR_BOARD_NODE_ID``).
 
     ``stats``: ``{"rx": {name: n}, "tx": {name: n}, "malformed", "unknown", "foreign",
     "internal_errors", "range_samples", "range_invalid", "profile_samples"}``. ``last_range`` is
@@ -150,7 +151,7 @@ class SensorBoard:
                                                self._profile_codec)}
         for cmd in self._codecs:
             if contract.sensor_board.get(cmd) is not self._codecs[cmd]:
-                raise ValueError("sensor board messages must be defined at node 16 in the DBC")
+                raise ValueError(f"sensor board messages must be defined at node {self.node_id} in the DBC")
         self._range_id = arbitration_id(self.node_id, self._range_codec.cmd_id)
         self._contacts_id = arbitration_id(self.node_id, self._contacts_codec.cmd_id)
         self._hb_id = arbitration_id(self.node_id, self._hb_codec.cmd_id)

@@ -5,8 +5,9 @@ uses ``N << 5 | cmd_id``. The sensor board's messages carry their full ids (node
 
 :class:`MessageCodec` packs and unpacks payloads. Where every signal of a message is
 byte-aligned, little-endian and 8/16/32 bits wide, the layout is compiled once into a
-``struct.Struct`` (the hot path: a few hundred nanoseconds a frame); otherwise cantools does the
-work. Both paths come from the same DBC signal definitions and are tested against each other.
+``struct.Struct`` for the hot path (its cost against cantools: docs/benchmarks.md); otherwise
+cantools does the work. Both paths come from the same DBC signal definitions and are tested
+against each other.
 """
 
 from __future__ import annotations

@@ -43,11 +43,10 @@ from typing import Any, Sequence
 
 import can
 
-from controller.io.axis import AxisLink
+from controller.io.axis import AxisConfig, AxisLink
 from controller.bringup.bus import BusError, BusWatch, Clock, Sleep
 from controller.bringup.move import MoveConfig, error_names, move_axis
 from controller.bringup.checklist import Checklist, Status
-from controller.config import AxisConfig
 from protocol import AxisState, BusContract, SENSOR_BOARD_NODE_ID
 
 log = logging.getLogger(__name__)

@@ -16,14 +16,36 @@ source address, whose conversion costs CPython an extra ``ioctl(SIOCGIFNAME)`` p
 from __future__ import annotations
 
 import errno
+import logging
 
 import can
+
+log = logging.getLogger(__name__)
 
 try:
     from can.interfaces.socketcan import constants as _c
     from can.interfaces.socketcan.socketcan import SocketcanBus, build_can_frame, capture_message, dissect_can_frame
-except ImportError:  # pragma: no cover - python-can without socketcan support (not Linux)
+except ImportError:  # python-can without SocketCAN support (not Linux), or internals that moved
     SocketcanBus = None
+
+
+def internals_work() -> bool:
+    """Whether python-can's SocketCAN internals this front borrows (``build_can_frame``,
+    ``dissect_can_frame``, the constants) still behave as this module expects: one standard and one
+    extended frame built and dissected back. They are not python-can's public API (pyproject.toml
+    bounds its version); where they fail, :func:`lean` hands out python-can's own bus instead."""
+    if SocketcanBus is None:
+        return False
+    try:
+        for can_id, ext in ((0x123, False), (0x1ABCDEF0 & 0x1FFFFFFF, True)):
+            frame = build_can_frame(can.Message(arbitration_id=can_id, is_extended_id=ext, data=b"\x01\x02\x03"))
+            got_id, dlc, _flags, data = dissect_can_frame(frame)
+            if (got_id & (0x1FFFFFFF if ext else 0x7FF)) != can_id or bool(got_id & _c.CAN_EFF_FLAG) != ext \
+                    or dlc != 3 or bytes(data[:dlc]) != b"\x01\x02\x03":
+                return False
+    except Exception:  # noqa: BLE001 - any failure means: do not use them
+        return False
+    return True
 
 
 def _capture_plain(sock) -> can.Message:
@@ -91,7 +113,11 @@ class LeanSocketcan:
 
 
 def lean(bus: can.BusABC, timestamps: bool = True):
-    """``bus`` behind :class:`LeanSocketcan` if it is a SocketCAN bus, else ``bus`` itself."""
+    """``bus`` behind :class:`LeanSocketcan` if it is a SocketCAN bus and python-can's internals
+    pass :func:`internals_work`, else ``bus`` itself (slower, the same frames)."""
     if SocketcanBus is not None and isinstance(bus, SocketcanBus):
-        return LeanSocketcan(bus, timestamps=timestamps)
+        if internals_work():
+            return LeanSocketcan(bus, timestamps=timestamps)
+        log.warning("python-can %s: its SocketCAN internals are not as expected; using its own bus (slower)",
+                    can.__version__)
     return bus

@@ -13,7 +13,7 @@ joint's range, or that jump from the last accepted reading faster than
 Every position command passes through :meth:`AxisLink.pos_frame`, which clamps the target into
 ``[min_rad, max_rad]`` (a NaN target holds the last one) and then clamps the motor position it
 encodes into ``pos_bounds_rev``: the float32 values whose joint angle, converted back with the
-axis's :class:`~controller.config.AxisConfig`, lies inside ``[min_rad, max_rad]``. Rounding to
+axis's :class:`AxisConfig`, lies inside ``[min_rad, max_rad]``. Rounding to
 the frame's float32 can therefore never carry a target past a limit: no code path can put a
 joint target outside the configured limits on the bus (``BusIO.send`` checks it again).
 """
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import can
 
-from controller.config import AxisConfig
-from protocol import AxisError, AxisState, BusContract, ControlMode, InputMode, data_frame
+from controller.settings.schema import REQUIRED, check_settings, setting
+from protocol import SENSOR_BOARD_NODE_ID, AxisError, AxisState, BusContract, ControlMode, InputMode, data_frame
 
 _F32 = struct.Struct("<f")
 _U32 = struct.Struct("<I")
@@ -35,6 +35,52 @@ _F32_MAX = 3.4028234663852886e38
 
 
 _KNOWN_ERRORS = int(sum(e.value for e in AxisError))  # every Axis_Error bit firmware 0.6 defines
+
+
+TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """One joint driven by one ODrive axis (``name``: "hip" or "knee"). Each other field's unit,
+    range and meaning are declared with it below.
+
+    ``current_limit_a`` is ODrive's ``motor.config.current_lim`` at run time: it bounds the torque
+    to Kt times it. Its default is the simulated drivers' hardware limit (a lower value lowers their
+    torque clamp, a higher one is capped by the hardware). ``vel_limit_rev_s`` is ODrive's
+    ``controller.config.vel_limit`` (motor side); its default is the simulated drivers' own. Keep
+    it well below ``FeedbackLimits.max_vel_rev_s``: faster encoder readings are taken for
+    corrupted frames.
+    """
+
+    name: str
+    node_id: int = setting(REQUIRED, "(CAN node id)", 0, 63,
+                           "the axis's CANSimple node id (ODrive axis.config.can.node_id)",
+                           exclude=((SENSOR_BOARD_NODE_ID, "that is the sensor board's"),))
+    min_rad: float = setting(REQUIRED, "rad", -TWO_PI, TWO_PI, "lowest joint angle ever commanded")
+    max_rad: float = setting(REQUIRED, "rad", -TWO_PI, TWO_PI, "highest joint angle ever commanded")
+    gear_ratio: float = setting(6.0, "rev/rev", 0.1, 1000.0, "motor revolutions per joint revolution")
+    direction: int = setting(1, doc="the sign from joint angle to motor angle", choices=(1, -1))
+    zero_offset_rev: float = setting(0.0, "rev", -1000.0, 1000.0, "motor position at joint angle 0 (calibration)")
+    current_limit_a: float = setting(20.0, "A", 0.1, 200.0, "motor current limit, sent with Set_Limits at arming")
+    vel_limit_rev_s: float = setting(20.0, "rev/s", 0.1, 80.0, "motor velocity limit, sent with Set_Limits at arming")
+
+    def __post_init__(self) -> None:
+        check_settings(self, f"axes.{self.name}")
+        if not self.min_rad < self.max_rad:
+            raise ValueError(f"axes.{self.name}: min_rad {self.min_rad} must be below max_rad {self.max_rad}")
+
+    def rad_to_rev(self, q_rad: float) -> float:
+        return self.zero_offset_rev + self.direction * self.gear_ratio * q_rad / (2.0 * math.pi)
+
+    def rev_to_rad(self, pos_rev: float) -> float:
+        return (pos_rev - self.zero_offset_rev) * 2.0 * math.pi / (self.direction * self.gear_ratio)
+
+    def rad_s_to_rev_s(self, qd_rad_s: float) -> float:
+        return self.direction * self.gear_ratio * qd_rad_s / (2.0 * math.pi)
+
+    def rev_s_to_rad_s(self, vel_rev_s: float) -> float:
+        return vel_rev_s * 2.0 * math.pi / (self.direction * self.gear_ratio)
 
 
 @dataclass(frozen=True)
@@ -50,8 +96,8 @@ class FeedbackLimits:
             limits; the drivers trip 0.02 rev, 0.02 rad, beyond them).
         max_joint_speed_rad_s: a reading further from the last accepted one than this speed
             times the time between them (at least ``min_jump_dt_s``) plus ``jump_slack_rad``
-            is a jump no joint makes [rad/s]; default 40 (measured: at most 13.6 rad/s, knee,
-            over 12 trials with 12 cm obstacles).
+            is a jump no joint makes [rad/s]; default 40 (well above the fastest joint speed
+            while stepping over obstacles).
         min_jump_dt_s: the shortest time the jump bound assumes between two readings [s];
             default 0.004 (two encoder periods: frames read in one tick share its clock).
         jump_slack_rad: added to the jump bound [rad]; default 0.05.

@@ -23,7 +23,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from controller.config import CpgConfig
+from controller.settings.schema import check_settings, setting
+
+
+@dataclass(frozen=True)
+class CpgConfig:
+    """The ring oscillator. The premotor module's burst is clipped to ``[burst_min_s, burst_max_s]``."""
+
+    stance_s: float = setting(0.40, "s", 0.05, 5.0, "extension (stance) half of the ring")
+    burst_s: float = setting(0.30, "s", 0.05, 5.0, "base burst length (swing)")
+    burst_min_s: float = setting(0.15, "s", 0.05, 5.0, "shortest burst the premotor may ask for")
+    burst_max_s: float = setting(0.60, "s", 0.05, 5.0, "longest burst the premotor may ask for")
+    activation_tau_s: float = setting(0.02, "s", 0.001, 1.0, "time constant of each unit's output")
+    units_per_half: int = setting(2, "units", 1, 8, "ring units per half")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "cpg")
+        if not self.burst_min_s <= self.burst_max_s:
+            raise ValueError(f"cpg.burst_max_s must be at least cpg.burst_min_s = {self.burst_min_s} s, "
+                             f"got {self.burst_max_s!r}")
+        if not self.burst_min_s <= self.burst_s <= self.burst_max_s:
+            raise ValueError(f"cpg.burst_s must be in [cpg.burst_min_s, cpg.burst_max_s] = "
+                             f"[{self.burst_min_s}, {self.burst_max_s}] s, got {self.burst_s!r}")
 
 
 @dataclass(frozen=True)

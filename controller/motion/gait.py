@@ -11,9 +11,27 @@ length, so at a constant ground speed the stride is ``ground_speed * (stance_s +
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
-from controller.config import CpgConfig, GaitConfig, LegGeometry
-from controller.motion.cpg import CpgOutput
+from controller.motion.cpg import CpgConfig, CpgOutput
+from controller.motion.kinematics import LegGeometry
+from controller.settings.schema import check_settings, setting
+
+
+@dataclass(frozen=True)
+class GaitConfig:
+    """Foot trajectory shaping. ``ramp_s``: the move from the pose found at bring-up to the gait's
+    start pose."""
+
+    ground_speed_m_s: float = setting(0.5, "m/s", 0.0, 3.0, "rail speed the stance foot matches")
+    foot_ahead_m: float = setting(0.10, "m", -0.5, 0.5, "foot x at touchdown, ahead of the hip")
+    step_height_m: float = setting(0.08, "m", 0.0, 0.3, "foot lift at full amplitude")
+    stance_press_m: float = setting(0.005, "m", 0.0, 0.05, "stance target below the ground")
+    muscle_tau_s: float = setting(0.015, "s", 0.0, 1.0, "muscle low-pass time constant")
+    ramp_s: float = setting(1.0, "s", 0.0, 10.0, "move to the start pose in this long")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "gait")
 
 
 class FootTrajectory:

@@ -7,8 +7,26 @@ inverse kinematics takes the knee-back solution.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
-from controller.config import LegGeometry
+from controller.settings.schema import check_settings, setting
+
+REACH = 0.999
+"""The farthest :func:`inverse` stretches the leg, as a fraction of thigh + shank (a fully
+straight knee is a singular pose)."""
+
+
+@dataclass(frozen=True)
+class LegGeometry:
+    """Leg dimensions the controller's kinematics assume."""
+
+    thigh_m: float = setting(0.25, "m", 0.01, 2.0, "hip to knee")
+    shank_m: float = setting(0.25, "m", 0.01, 2.0, "knee to foot centre")
+    hip_height_m: float = setting(0.47, "m", 0.01, 4.0, "hip axis above the ground")
+    foot_radius_m: float = setting(0.02, "m", 0.0, 0.2, "foot sphere radius")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "geometry")
 
 
 def forward(geometry: LegGeometry, hip_rad: float, knee_rad: float) -> tuple[float, float]:
@@ -27,7 +45,7 @@ def inverse(geometry: LegGeometry, x_m: float, z_m: float) -> tuple[float, float
     """
     l1, l2 = geometry.thigh_m, geometry.shank_m
     r = math.hypot(x_m, z_m)
-    r_max = (l1 + l2) * 0.999
+    r_max = (l1 + l2) * REACH
     r_min = abs(l1 - l2) + 0.02
     if r > r_max or r < r_min:
         scale = (r_max if r > r_max else r_min) / max(r, 1e-9)

@@ -14,7 +14,7 @@ section             what it sets
                     :class:`~controller.config.ControllerConfig`)
 ``[axes.hip]``,     per axis: CAN node id, gear ratio, direction, zero offset (calibration),
 ``[axes.knee]``     joint limits, the current and velocity limits sent with Set_Limits at
-                    arming (:class:`~controller.config.AxisConfig`)
+                    arming (:class:`~controller.io.axis.AxisConfig`)
 ``[drivers]``       what the drivers themselves are configured with: their command watchdog
                     timeout (:class:`DriverSettings`)
 ``[weights]``       where the learned weights live, how often they are saved (:class:`WeightsSettings`)
@@ -23,13 +23,18 @@ section             what it sets
                     ``learner``, ``encoder``, ``range_filter``, ``reflexes``, ``height``
 ==================  ==========================================================================
 
+The schema is not written here: each key's kind, unit, range and one-line comment are the
+dataclass field's own declaration (:func:`controller.settings.schema.setting`, beside the module
+the dataclass configures), which the dataclass also checks on creation; this module adds the
+sections and the checks across fields.
+
 Validation (:func:`load_config`, :func:`config_from_dict`) collects every problem in the file
 and raises one :class:`ConfigError` listing them all. Each problem names the dotted field, the
 value found, and what is allowed with its unit, e.g. ``axes.knee.gear_ratio = -6: must be in
 [0.1, 1000] rev/rev``. Problems are: TOML that does not parse (with the line); unknown sections
 and keys (the known ones listed); wrong types (a string where a number belongs, a float node
 id, a number where true/false belongs); values out of range; and the cross-field checks: the two
-axes on different node ids, neither the sensor board's 16; ``min_rad < max_rad`` and a joint
+axes on different node ids, neither the sensor board's; ``min_rad < max_rad`` and a joint
 range that holds float32 motor positions; ``stale_heartbeat_periods >= silence_periods``; a
 node-silence timeout (``heartbeat_period_s * silence_periods``) between 5 control periods and
 :data:`MAX_SILENCE_TIMEOUT_S`; at least :data:`MIN_COMMANDS_PER_WATCHDOG` commands per driver
@@ -38,7 +43,7 @@ watchdog timeout; a standard CAN bit rate with room for the loop's frames
 range within the range filter's; a leg long enough to reach the ground.
 
 The sensor board's node id is not a setting: it is the bus contract's
-(:data:`protocol.SENSOR_BOARD_NODE_ID`, 16).
+(:data:`protocol.SENSOR_BOARD_NODE_ID`).
 
 Relative weight paths are taken relative to the configuration file's folder, and stored
 absolute. :func:`to_toml` writes a configuration back (a small emitter for this schema: tables
@@ -53,12 +58,11 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 try:
     import tomllib
@@ -67,8 +71,12 @@ except ModuleNotFoundError:  # Python 3.10: the same parser, as a package
 
 from can.interfaces import VALID_INTERFACES
 
-from controller.io.axis import float32_target_bounds_rev
-from controller.config import AxisConfig, ControllerConfig
+from controller.atomic import write_text_atomic
+from controller.config import ControllerConfig
+from controller.io.axis import AxisConfig, float32_target_bounds_rev
+from controller.motion.kinematics import REACH
+from controller.settings.schema import (Setting, _num, _show, check_settings, setting, settings_of, toml_string,
+                                       toml_value)
 from protocol import SENSOR_BOARD_NODE_ID
 
 log = logging.getLogger(__name__)
@@ -97,22 +105,35 @@ retransmissions need the rest)."""
 
 
 # ----------------------------------------------------------------------------- the dataclasses
+def _check_channel(text: str) -> str | None:
+    if not text or text != text.strip() or "\x00" in text:
+        return "must name the bus channel (e.g. \"can0\", \"vcan0\"), without spaces around it"
+    return None
+
+
+def _check_weights_path(text: str) -> str | None:
+    if "\x00" in text:
+        return "must be a file path (.npz) or \"\" for none, without NUL characters"
+    if text and not text.endswith(".npz"):
+        return "must be an .npz file path (e.g. \"/var/lib/elegant-stepping/weights.npz\") or \"\" for none"
+    return None
+
+
 @dataclass(frozen=True)
 class BusSettings:
-    """The CAN bus, as python-can opens it.
-
-    Attributes:
-        interface: python-can interface; default ``"socketcan"`` (Linux SocketCAN: ``can0`` for
-            a USB-CAN adapter or a CAN HAT, ``vcan0`` for the simulated leg).
-        channel: the channel; default ``"can0"``.
-        bitrate: bit rate [bit/s]; default 1000000. Interfaces that set it (pcan, kvaser,
-            slcan, gs_usb, ...) are given it; for SocketCAN it is set on the link (``ip link set
-            can0 type can bitrate 1000000``) and must match the drivers' ``can.config.baud_rate``.
+    """The CAN bus, as python-can opens it: by default Linux SocketCAN's ``can0`` (a USB-CAN
+    adapter or a CAN HAT; ``vcan0`` for the simulated leg). Interfaces that set the bit rate
+    (pcan, kvaser, slcan, gs_usb, ...) are given it; for SocketCAN it is set on the link (``ip link
+    set can0 type can bitrate 1000000``) and must match the drivers' ``can.config.baud_rate``.
     """
 
-    interface: str = "socketcan"
-    channel: str = "can0"
-    bitrate: int = 1_000_000
+    interface: str = setting("socketcan", doc="python-can interface", choices=tuple(sorted(VALID_INTERFACES)))
+    channel: str = setting("can0", doc="bus channel, e.g. can0 or vcan0", check=_check_channel)
+    bitrate: int = setting(1_000_000, "bit/s (a standard CAN rate)", 10_000, 1_000_000,
+                           "CAN bit rate, the drivers' can.config.baud_rate", choices=STANDARD_BITRATES)
+
+    def __post_init__(self) -> None:
+        check_settings(self, "bus")
 
     def can_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for :class:`can.Bus`."""
@@ -123,33 +144,35 @@ class BusSettings:
 class DriverSettings:
     """What the motor drivers are configured with (in the drivers, not over CAN).
 
-    Attributes:
-        watchdog_timeout_s: the drivers' command watchdog [s]: an axis that hears no command
-            for this long disarms (IDLE, WATCHDOG_TIMER_EXPIRED). ODrive's
-            ``axis.config.watchdog_timeout`` (with ``axis.config.enable_watchdog``), set with
-            odrivetool: CANSimple 0.6 cannot set it. The controller only checks its own command
-            period against it (at least :data:`MIN_COMMANDS_PER_WATCHDOG` commands per
-            timeout). Default 0.1, the simulated drivers'.
+    ``watchdog_timeout_s``: an axis that hears no command for this long disarms (IDLE,
+    WATCHDOG_TIMER_EXPIRED). ODrive's ``axis.config.watchdog_timeout`` (with
+    ``axis.config.enable_watchdog``), set with odrivetool: CANSimple 0.6 cannot set it. The
+    controller only checks its own command period against it (at least
+    :data:`MIN_COMMANDS_PER_WATCHDOG` commands per timeout). The default is the simulated drivers'.
     """
 
-    watchdog_timeout_s: float = 0.1
+    watchdog_timeout_s: float = setting(0.1, "s", 0.005, 1.0, "the drivers' command watchdog "
+                                        "(ODrive axis.config.watchdog_timeout; set with odrivetool)")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "drivers")
 
 
 @dataclass(frozen=True)
 class WeightsSettings:
     """Where the learned weights live.
 
-    Attributes:
-        path: the weights file (``.npz``, :mod:`controller.stepping.weights`): resumed from at start (else
-            its ``.prev`` copy, else zeros) and saved while walking and at exit; ``""`` (default):
-            not persisted. ``~`` is expanded; a relative path is relative to the configuration
-            file's folder.
-        save_every_s: save after this many seconds of walking, if the weights changed [s];
-            default 10.0.
+    ``path``: the weights file (``.npz``, :mod:`controller.stepping.weights`), resumed from at start
+    (else its ``.prev`` copy, else zeros) and saved while walking and at exit; ``""``: not
+    persisted. ``~`` is expanded; a relative path is relative to the configuration file's folder.
+    ``save_every_s``: saved after this much walking only if the weights changed.
     """
 
-    path: str = ""
-    save_every_s: float = 10.0
+    path: str = setting("", doc="the learned weights' .npz file; \"\" = not persisted", check=_check_weights_path)
+    save_every_s: float = setting(10.0, "s", 0.1, 86400.0, "save after this much walking, if they changed")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "weights")
 
 
 @dataclass(frozen=True)
@@ -189,306 +212,18 @@ class ConfigError(ValueError):
 
 
 # ----------------------------------------------------------------------------- the schema
-def _num(x: float) -> str:
-    """A bound or a computed figure, for a message: 1000 not 1000.0, 6.28319 not 6.283185307."""
-    if isinstance(x, int) and not isinstance(x, bool):
-        return str(x)
-    if math.isfinite(x) and x == int(x) and abs(x) < 1e15:
-        return str(int(x))
-    return f"{x:.6g}"
+# Every key, its kind, unit, range and comment: the dataclasses' own declarations
+# (controller.settings.schema.setting), section by section.
+_BASE = ControllerConfig()
 
-
-def toml_string(text: str) -> str:
-    """``text`` as a TOML basic string (quotation mark, backslash and control characters escaped)."""
-    out = ['"']
-    for ch in text:
-        if ch == '"':
-            out.append('\\"')
-        elif ch == "\\":
-            out.append("\\\\")
-        elif ch in "\b\t\n\f\r":
-            out.append({"\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}[ch])
-        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
-            out.append(f"\\u{ord(ch):04X}")
-        else:
-            out.append(ch)
-    out.append('"')
-    return "".join(out)
-
-
-def toml_value(value: Any) -> str:
-    """A value of this schema (bool, int, float, str, or a tuple/list of numbers) as TOML."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)  # the shortest text that reads back to the same float; valid TOML
-    if isinstance(value, str):
-        return toml_string(value)
-    if isinstance(value, (tuple, list)):
-        return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    raise TypeError(f"no TOML for {value!r}")
-
-
-def _show(value: Any) -> str:
-    """The value found, for a message: as it would be written in TOML."""
-    if isinstance(value, dict):
-        return "a table"
-    try:
-        return toml_value(value)
-    except TypeError:
-        return repr(value)
-
-
-def _type_name(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true/false"
-    return {int: "an integer", float: "a float", str: "a string", list: "an array", dict: "a table"}.get(
-        type(value), type(value).__name__)
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One key of a section.
-
-    Attributes:
-        key: the key (the dataclass field of the same name).
-        kind: ``"float"`` (an integer is taken too), ``"int"``, ``"bool"``, ``"str"``, or
-            ``"floats"`` (an array of numbers).
-        unit: the unit, as printed after the range (a physical unit, or words in parentheses).
-        lo, hi: the allowed range (inclusive), for numbers and each number of an array.
-        doc: one line: what it is.
-        choices: the only values allowed, if not empty.
-        exclude: (value, reason) pairs refused even inside the range.
-        items: (fewest, most) numbers in an array.
-        check: a further check of the value, returning a problem (without the field) or None.
-    """
-
-    key: str
-    kind: str
-    unit: str = ""
-    lo: float | None = None
-    hi: float | None = None
-    doc: str = ""
-    choices: tuple = ()
-    exclude: tuple[tuple[Any, str], ...] = ()
-    items: tuple[int, int] = (1, 1)
-    check: Callable[[Any], str | None] | None = None
-
-    def _unit(self) -> str:
-        return f" {self.unit}" if self.unit else ""
-
-    def _range(self) -> str:
-        return f"[{_num(self.lo)}, {_num(self.hi)}]{self._unit()}"
-
-    def _choices(self) -> str:
-        shown = [_show(c) for c in self.choices]
-        if len(shown) <= 2:
-            return " or ".join(shown) + self._unit()
-        return "one of " + ", ".join(shown[:-1]) + " or " + shown[-1] + self._unit()
-
-    def allowed(self) -> str:
-        """What is allowed, with the unit: ``[0.1, 1000] rev/rev``, ``1 or -1 (sign ...)``."""
-        if self.kind == "bool":
-            return "true or false"
-        if self.choices:
-            return self._choices()
-        if self.lo is not None and self.hi is not None:
-            text = ("each in " if self.kind == "floats" else "") + self._range()
-            return text + "".join(f", not {_num(bad)}" for bad, _ in self.exclude)
-        return self.unit or "any"
-
-    def parse(self, value: Any) -> tuple[Any, str | None]:
-        """(the value converted, None) or (None, the problem without the field's name)."""
-        kind = self.kind
-        if kind == "bool":
-            if not isinstance(value, bool):
-                return None, f"must be true or false ({self.doc}), not {_type_name(value)}"
-            return value, None
-        if kind == "str":
-            if not isinstance(value, str):
-                return None, f"must be a string ({self.doc}), not {_type_name(value)}"
-            if self.choices and value not in self.choices:
-                return None, f"must be {self._choices()}"
-            if self.check is not None:
-                problem = self.check(value)
-                if problem:
-                    return None, problem
-            return value, None
-        if kind == "floats":
-            fewest, most = self.items
-            if not isinstance(value, list):
-                return None, f"must be an array of {fewest} to {most} numbers, each in {self._range()}, " \
-                             f"not {_type_name(value)}"
-            if not fewest <= len(value) <= most:
-                return None, f"must list {fewest} to {most} numbers, each in {self._range()}; it lists {len(value)}"
-            out = []
-            for i, v in enumerate(value):
-                number, problem = self._number(v, float)
-                if problem:
-                    return None, f"item {i} ({_show(v)}) {problem}"
-                out.append(number)
-            if self.check is not None:
-                problem = self.check(tuple(out))
-                if problem:
-                    return None, problem
-            return tuple(out), None
-        return self._number(value, int if kind == "int" else float)
-
-    def _number(self, value: Any, kind: type) -> tuple[Any, str | None]:
-        ranged = self.lo is not None and self.hi is not None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and isinstance(value, float)):
-            what = "an integer" if kind is int else "a number"
-            if ranged:
-                expect = f" in {self._range()}"
-            else:
-                expect = ", " + self._choices() + ("" if self.unit else f" ({self.doc})")
-            return None, f"must be {what}{expect}, not {_type_name(value)}"
-        number = kind(value)
-        if ranged and not (math.isfinite(number) and self.lo <= number <= self.hi):
-            return None, f"must be in {self._range()}"
-        if self.choices and number not in self.choices:
-            return None, f"must be {self._choices()}" + ("" if self.unit else f" ({self.doc})")
-        for bad, reason in self.exclude:
-            if number == bad:
-                return None, f"must be in {self._range()} and not {_num(bad)}: {reason}"
-        return number, None
-
-
-def _f(key: str, unit: str, lo: float, hi: float, doc: str, **kw: Any) -> Setting:
-    return Setting(key, "float", unit, lo, hi, doc, **kw)
-
-
-def _i(key: str, unit: str, lo: int, hi: int, doc: str, **kw: Any) -> Setting:
-    return Setting(key, "int", unit, lo, hi, doc, **kw)
-
-
-def _check_channel(text: str) -> str | None:
-    if not text or text != text.strip() or "\x00" in text:
-        return "must name the bus channel (e.g. \"can0\", \"vcan0\"), without spaces around it"
-    return None
-
-
-def _check_weights_path(text: str) -> str | None:
-    if "\x00" in text:
-        return "must be a file path (.npz) or \"\" for none, without NUL characters"
-    if text and not text.endswith(".npz"):
-        return "must be an .npz file path (e.g. \"/var/lib/elegant-stepping/weights.npz\") or \"\" for none"
-    return None
-
-
-def _check_increasing(values: tuple[float, ...]) -> str | None:
-    if any(b <= a for a, b in zip(values, values[1:])):
-        return "must be strictly increasing (lowest beam first) [m]"
-    return None
-
-
-TWO_PI = 2.0 * math.pi
-
-BUS = (
-    Setting("interface", "str", "", doc="python-can interface", choices=tuple(sorted(VALID_INTERFACES))),
-    Setting("channel", "str", "", doc="bus channel, e.g. can0 or vcan0", check=_check_channel),
-    _i("bitrate", "bit/s (a standard CAN rate)", 10_000, 1_000_000, "CAN bit rate, the drivers' can.config.baud_rate",
-       choices=STANDARD_BITRATES),
-)
-
-CONTROLLER = (
-    _f("rate_hz", "Hz", 10.0, 5000.0, "control loop rate"),
-    _f("heartbeat_period_s", "s", 0.001, 10.0,
-       "the nodes' heartbeat period (ODrive axis.config.can.heartbeat_msg_rate_ms / 1000)"),
-    _f("silence_periods", "heartbeat periods", 1.0, 100.0,
-       "a node with no valid frame for this long is lost (safe stop)"),
-    _f("stale_heartbeat_periods", "heartbeat periods", 1.0, 1000.0,
-       "a node with no heartbeat for this long is lost"),
-    _f("bringup_timeout_s", "s", 0.01, 600.0, "give up bringing the axes up after this long"),
-    _f("late_factor", "control periods", 1.0, 100.0, "a tick longer than this is late"),
-    _f("max_dt_factor", "control periods", 1.0, 100.0, "the CPG integrates at most this much per tick"),
-)
-
-AXIS = (
-    _i("node_id", "(CAN node id)", 0, 63, "the axis's CANSimple node id (ODrive axis.config.can.node_id)",
-       exclude=((SENSOR_BOARD_NODE_ID, "that is the sensor board's"),)),
-    _f("gear_ratio", "rev/rev", 0.1, 1000.0, "motor revolutions per joint revolution"),
-    Setting("direction", "int", "", doc="the sign from joint angle to motor angle", choices=(1, -1)),
-    _f("zero_offset_rev", "rev", -1000.0, 1000.0, "motor position at joint angle 0 (calibration)"),
-    _f("min_rad", "rad", -TWO_PI, TWO_PI, "lowest joint angle ever commanded"),
-    _f("max_rad", "rad", -TWO_PI, TWO_PI, "highest joint angle ever commanded"),
-    _f("current_limit_a", "A", 0.1, 200.0, "motor current limit, sent with Set_Limits at arming"),
-    _f("vel_limit_rev_s", "rev/s", 0.1, 80.0, "motor velocity limit, sent with Set_Limits at arming"),
-)
-
-DRIVERS = (
-    _f("watchdog_timeout_s", "s", 0.005, 1.0,
-       "the drivers' command watchdog (ODrive axis.config.watchdog_timeout; set with odrivetool)"),
-)
-
-WEIGHTS = (
-    Setting("path", "str", "", doc="the learned weights' .npz file; \"\" = not persisted", check=_check_weights_path),
-    _f("save_every_s", "s", 0.1, 86400.0, "save after this much walking, if they changed"),
-)
-
+BUS = settings_of(BusSettings)
+CONTROLLER = settings_of(ControllerConfig)  # its scalar fields; sensor_node_id is the bus contract's
+AXIS = settings_of(AxisConfig)  # all but the name, which is the section's
+DRIVERS = settings_of(DriverSettings)
+WEIGHTS = settings_of(WeightsSettings)
 MODEL: dict[str, tuple[Setting, ...]] = {
-    "cpg": (
-        _f("stance_s", "s", 0.05, 5.0, "extension (stance) half of the ring"),
-        _f("burst_s", "s", 0.05, 5.0, "base burst length (swing)"),
-        _f("burst_min_s", "s", 0.05, 5.0, "shortest burst the premotor may ask for"),
-        _f("burst_max_s", "s", 0.05, 5.0, "longest burst the premotor may ask for"),
-        _f("activation_tau_s", "s", 0.001, 1.0, "time constant of each unit's output"),
-        _i("units_per_half", "units", 1, 8, "ring units per half"),
-    ),
-    "gait": (
-        _f("ground_speed_m_s", "m/s", 0.0, 3.0, "rail speed the stance foot matches"),
-        _f("foot_ahead_m", "m", -0.5, 0.5, "foot x at touchdown, ahead of the hip"),
-        _f("step_height_m", "m", 0.0, 0.3, "foot lift at full amplitude"),
-        _f("stance_press_m", "m", 0.0, 0.05, "stance target below the ground"),
-        _f("muscle_tau_s", "s", 0.0, 1.0, "muscle low-pass time constant"),
-        _f("ramp_s", "s", 0.0, 10.0, "move to the start pose in this long"),
-    ),
-    "geometry": (
-        _f("thigh_m", "m", 0.01, 2.0, "hip to knee"),
-        _f("shank_m", "m", 0.01, 2.0, "knee to foot centre"),
-        _f("hip_height_m", "m", 0.01, 4.0, "hip axis above the ground"),
-        _f("foot_radius_m", "m", 0.0, 0.2, "foot sphere radius"),
-    ),
-    "learner": (
-        _f("stm_tau_s", "s", 0.01, 60.0, "short-term memory decay"),
-        _f("trace_tau_s", "s", 0.01, 60.0, "synaptic trace decay"),
-        _f("learning_rate_s", "s", 0.0, 1.0, "weight change per unit trace per reflex"),
-        _f("weight_limit_s", "s", 0.001, 2.0, "bound on each weight's magnitude"),
-        Setting("learning", "bool", doc="false freezes the weights"),
-    ),
-    "encoder": (
-        _f("cell_width_m", "m", 0.001, 1.0, "width of one range cell"),
-        _f("max_range_m", "m", 0.01, 10.0, "the encoded range"),
-    ),
-    "range_filter": (
-        _f("noise_m", "m", 0.0001, 1.0, "standard deviation of one range reading"),
-        _f("accel_noise_m_s2", "m/s^2", 0.0, 100.0, "white-acceleration process noise"),
-        _f("max_range_m", "m", 0.01, 100.0, "readings beyond this are out of range"),
-        _f("stale_s", "s", 0.001, 10.0, "no valid reading for this long: no target"),
-        _f("gate_sigma", "standard deviations", 0.5, 100.0, "innovation gate for outliers"),
-        _i("reacquire_after", "readings", 1, 1000, "consecutive outliers that mean a new target"),
-    ),
-    "reflexes": (
-        _f("touchdown_phase", "(fraction of the swing)", 0.0, 1.0, "after this a foot contact is a touchdown"),
-        _f("on_top_height_m", "m", 0.0, 0.5, "foot contact this high means it landed on something"),
-        _f("refractory_s", "s", 0.0, 10.0, "minimum time between two contact reflexes"),
-        _f("lift_range_m", "m", 0.0, 3.0, "gated range below which the lift reflex fires"),
-        _f("lift_amplitude", "x step height", 0.1, 5.0, "CPG amplitude during a lift"),
-    ),
-    "height": (
-        Setting("beam_heights_m", "floats", "m", 0.001, 0.5, "profile beam heights, lowest first", items=(1, 8),
-                check=_check_increasing),
-        _f("match_tolerance_m", "m", 0.001, 1.0, "a beam sees the target within this of the range"),
-        _i("window", "samples", 1, 1000, "profile samples voted over"),
-        _f("seen_fraction", "(fraction of samples)", 0.01, 1.0, "a beam sees the target this often"),
-        _f("jump_m", "m", 0.001, 10.0, "a range jump this large clears the votes"),
-    ),
+    section: settings_of(type(getattr(_BASE, section)))
+    for section in ("cpg", "gait", "geometry", "learner", "encoder", "range_filter", "reflexes", "height")
 }
 
 AXIS_NAMES = ("hip", "knee")
@@ -586,8 +321,9 @@ def _cross_checks(t: Tables, bad: set[str], problems: list[str]) -> None:
 
     hip, knee = "axes.hip.node_id", "axes.knee.node_id"
     if ok(hip, knee) and v(hip) == v(knee):
+        node = _SETTING[hip.rsplit(".", 1)[0]]["node_id"]
         problems.append(f"{hip} = {v(hip)} and {knee} = {v(knee)}: the two axes need different CAN node ids "
-                        f"(0..63, not {SENSOR_BOARD_NODE_ID})")
+                        f"({_num(node.lo)}..{_num(node.hi)}, not {SENSOR_BOARD_NODE_ID})")
     for name in AXIS_NAMES:
         lo, hi = f"axes.{name}.min_rad", f"axes.{name}.max_rad"
         if ok(lo, hi) and not v(lo) < v(hi):
@@ -646,12 +382,12 @@ def _cross_checks(t: Tables, bad: set[str], problems: list[str]) -> None:
     reach = ("geometry.thigh_m", "geometry.shank_m", "geometry.hip_height_m", "geometry.foot_radius_m",
              "gait.stance_press_m")
     if ok(*reach):
-        leg_m = 0.999 * (v("geometry.thigh_m") + v("geometry.shank_m"))  # the kinematics' reach
+        leg_m = REACH * (v("geometry.thigh_m") + v("geometry.shank_m"))  # the kinematics' reach
         down_m = v("geometry.hip_height_m") - v("geometry.foot_radius_m") + v("gait.stance_press_m")
         if down_m > leg_m:
             problems.append(f"geometry.hip_height_m - geometry.foot_radius_m + gait.stance_press_m = {_num(down_m)} m: "
                             f"the stance foot cannot reach the ground with geometry.thigh_m + geometry.shank_m = "
-                            f"{_num(leg_m / 0.999)} m")
+                            f"{_num(leg_m / REACH)} m")
 
 
 def validate_tables(data: Mapping[str, Any]) -> tuple[Tables, list[str]]:
@@ -779,10 +515,7 @@ def write_config(path: str | os.PathLike, config: DeployConfig, header: str | No
     text = to_toml(config, header=header)
     if config_from_toml(text, path) != config:
         raise ConfigError(["does not read back to the configuration written (a bug in the emitter)"], path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-    return path
+    return write_text_atomic(path, text)
 
 
 def summary(config: DeployConfig) -> str:
@@ -802,6 +535,5 @@ def summary(config: DeployConfig) -> str:
 __all__ = [
     "BusSettings", "DriverSettings", "WeightsSettings", "DeployConfig", "ConfigError", "Setting", "SECTIONS",
     "load_config", "config_from_dict", "config_from_toml", "validate_tables", "config_tables", "check_config",
-    "to_toml",
-    "write_config", "summary",
+    "to_toml", "toml_string", "toml_value", "write_config", "summary",
 ]

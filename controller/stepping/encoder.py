@@ -11,26 +11,28 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from controller.settings.schema import check_settings, setting
+
 
 @dataclass(frozen=True)
 class RangeEncoderConfig:
-    """Attributes:
-    cell_width_m: width of one cell [m]; default 0.04. Narrower cells
-        learn the same map but visit each cell less often: with 3 cm cells, late trials met
-        cells that had never been trained; see the README's learning section.
-    max_range_m: the encoded range [m]; default 1.12 (28 cells), about three strides of the
-        natural gait (0.36 m) beyond the take-off window. The paper's robot "makes at most three
-        discrete decisions prior to going over the obstacle": farther gates see no cell, so the
-        modulation acts in the last three step cycles only. The range sensor itself sees 3 m,
-        and the range filter tracks the obstacle from there on.
+    """The cells. Narrower cells learn the same map but visit each cell less often, so cells met
+    late may never have been trained (see the README's learning section).
+
+    ``max_range_m`` defaults to 28 cells, about three strides of the natural gait beyond the
+    take-off window. The paper's robot "makes at most three discrete decisions prior to going over
+    the obstacle": farther gates see no cell, so the modulation acts in the last three step cycles
+    only. The range sensor itself sees farther, and the range filter tracks the obstacle from there.
     """
 
-    cell_width_m: float = 0.04
-    max_range_m: float = 1.12
+    cell_width_m: float = setting(0.04, "m", 0.001, 1.0, "width of one range cell")
+    max_range_m: float = setting(1.12, "m", 0.01, 10.0, "the encoded range")
 
     def __post_init__(self) -> None:
-        if not (0.001 <= self.cell_width_m <= self.max_range_m):
-            raise ValueError(f"encoder.cell_width_m must be in [0.001, {self.max_range_m}] m, got {self.cell_width_m}")
+        check_settings(self, "encoder")
+        if not self.cell_width_m <= self.max_range_m:
+            raise ValueError(f"encoder.cell_width_m must be at most encoder.max_range_m = {self.max_range_m} m, "
+                             f"got {self.cell_width_m!r}")
 
     @property
     def n_cells(self) -> int:

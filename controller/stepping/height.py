@@ -11,11 +11,10 @@ A beam sees the target when its reading lies within ``match_tolerance_m`` of the
 distance, to well under a millimetre at these heights). Each profile sample casts one vote per
 beam (on the target or not); a beam counts as seeing the target when it did in at least
 ``seen_fraction`` of the last ``window`` samples (a majority per beam, so independent dropouts
-of a few percent, or even 30 %, do not change the count), and the context is the number of such
-beams. The votes are cleared when the
-target leaves view (the filter withdraws its estimate) and when the filtered range jumps by more
-than ``jump_m`` between two samples (a new target: the filter re-acquired). With no votes the
-context is None (unknown).
+of a sizeable fraction of the samples do not change the count), and the context is the number of
+such beams. The votes are cleared when the target leaves view (the filter withdraws its estimate)
+and when the filtered range jumps by more than ``jump_m`` between two samples (a new target: the
+filter re-acquired). With no votes the context is None (unknown).
 
 The estimator never sees the scenario: only the profile frames and the filtered range.
 """
@@ -26,44 +25,37 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from controller.settings.schema import check_settings, setting
+
+
+def _increasing(heights: tuple[float, ...]) -> str | None:
+    if any(b <= a for a, b in zip(heights, heights[1:])):
+        return "must be strictly increasing (lowest beam first) [m]"
+    return None
+
 
 @dataclass(frozen=True)
 class HeightEstimatorConfig:
-    """Attributes:
-    beam_heights_m: heights of the profile beams above the ground [m], lowest first, as mounted
-        on the rig (Beam_0 upward); default (0.05, 0.09, 0.13). Only their number matters to the
-        context; the heights say what each context means (:meth:`HeightEstimator.bounds_m`).
-    match_tolerance_m: a beam sees the target when its reading is within this of the filtered
-        range [m]; default 0.10 (5 standard deviations of the 0.02 m reading noise).
-    window: votes kept, one per profile sample (50 Hz); default 10 (the last 0.2 s).
-    seen_fraction: a beam sees the target when it matched in at least this fraction of the kept
-        samples; default 0.5 (a majority; a tie counts as seen).
-    jump_m: a change of the filtered range between two samples larger than this means a new
-        target and clears the votes [m]; default 0.30 (the carriage covers 0.01 m per sample).
+    """The estimator.
+
+    ``beam_heights_m`` are the beams as mounted on the rig (Beam_0 upward). Only their number
+    matters to the context; the heights say what each context means
+    (:meth:`HeightEstimator.bounds_m`). The default ``match_tolerance_m`` is 5 standard deviations
+    of the range reading noise; the default ``window`` holds the last 0.2 s of profile samples
+    (50 Hz); a ``seen_fraction`` of 0.5 is a majority, a tie counting as seen; the default
+    ``jump_m`` is far more than the carriage covers between two samples.
     """
 
-    beam_heights_m: tuple[float, ...] = (0.05, 0.09, 0.13)
-    match_tolerance_m: float = 0.10
-    window: int = 10
-    seen_fraction: float = 0.5
-    jump_m: float = 0.30
+    beam_heights_m: tuple[float, ...] = setting((0.05, 0.09, 0.13), "m", 0.001, 0.5,
+                                                "profile beam heights, lowest first", items=(1, 8),
+                                                check=_increasing)
+    match_tolerance_m: float = setting(0.10, "m", 0.001, 1.0, "a beam sees the target within this of the range")
+    window: int = setting(10, "samples", 1, 1000, "profile samples voted over")
+    seen_fraction: float = setting(0.5, "(fraction of samples)", 0.01, 1.0, "a beam sees the target this often")
+    jump_m: float = setting(0.30, "m", 0.001, 10.0, "a range jump this large clears the votes")
 
     def __post_init__(self) -> None:
-        heights = tuple(self.beam_heights_m)
-        if not 1 <= len(heights) <= 8:
-            raise ValueError(f"height.beam_heights_m must list 1 to 8 beams, got {len(heights)}")
-        if not all(isinstance(h, (int, float)) and math.isfinite(h) and 0.0 < h <= 0.5 for h in heights):
-            raise ValueError(f"height.beam_heights_m must be in (0, 0.5] m, got {heights!r}")
-        if any(b <= a for a, b in zip(heights, heights[1:])):
-            raise ValueError(f"height.beam_heights_m must be strictly increasing, got {heights!r}")
-        if not (math.isfinite(self.match_tolerance_m) and 0.0 < self.match_tolerance_m <= 1.0):
-            raise ValueError(f"height.match_tolerance_m must be in (0, 1] m, got {self.match_tolerance_m!r}")
-        if not (isinstance(self.window, int) and 1 <= self.window <= 1000):
-            raise ValueError(f"height.window must be an integer in [1, 1000], got {self.window!r}")
-        if not (math.isfinite(self.seen_fraction) and 0.0 < self.seen_fraction <= 1.0):
-            raise ValueError(f"height.seen_fraction must be in (0, 1], got {self.seen_fraction!r}")
-        if not (math.isfinite(self.jump_m) and self.jump_m > 0.0):
-            raise ValueError(f"height.jump_m must be > 0 m, got {self.jump_m!r}")
+        check_settings(self, "height")
 
     @property
     def n_contexts(self) -> int:

@@ -27,36 +27,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.settings.schema import check_settings, setting
+
 
 @dataclass(frozen=True)
 class LearnerConfig:
-    """Attributes:
-    stm_tau_s: decay time constant of the short-term memory [s]; default 1.0 (the swing that
-        the gate modulates starts 0.4 s after it and ends about 0.7 s after it, when the memory
-        holds 0.67 to 0.50 of its gated value).
-    trace_tau_s: decay time constant of the synaptic traces [s]; default 2.5 (a reflex at the
-        crossing still finds the traces of the last three gates at 0.76, 0.57 and 0.43 of their
-        peak: credit reaches the decisions that placed the last footfall).
-    learning_rate_s: weight change per unit trace per reflex [s]; default 0.3.
-    weight_limit_s: bound on each weight's magnitude [s]; default 0.4.
-    learning: False freezes the weights (the no-learning baseline); default True.
+    """Memory, traces and learning rule. ``learning`` False is the no-learning baseline.
+
+    The default ``stm_tau_s`` keeps most of the gated value alive through the swing the gate
+    modulates (it starts a stance after the gate). The default ``trace_tau_s`` leaves the traces of
+    the last three gates alive at the crossing, the most recent the strongest: credit reaches the
+    decisions that placed the last footfall.
     """
 
-    stm_tau_s: float = 1.0
-    trace_tau_s: float = 2.5
-    learning_rate_s: float = 0.3
-    weight_limit_s: float = 0.4
-    learning: bool = True
+    stm_tau_s: float = setting(1.0, "s", 0.01, 60.0, "short-term memory decay")
+    trace_tau_s: float = setting(2.5, "s", 0.01, 60.0, "synaptic trace decay")
+    learning_rate_s: float = setting(0.3, "s", 0.0, 1.0, "weight change per unit trace per reflex")
+    weight_limit_s: float = setting(0.4, "s", 0.001, 2.0, "bound on each weight's magnitude")
+    learning: bool = setting(True, doc="false freezes the weights")
 
     def __post_init__(self) -> None:
-        for name in ("stm_tau_s", "trace_tau_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and 0.01 <= value <= 60.0):
-                raise ValueError(f"learner.{name} must be in [0.01, 60] s, got {value!r}")
-        if not (math.isfinite(self.learning_rate_s) and 0.0 <= self.learning_rate_s <= 1.0):
-            raise ValueError(f"learner.learning_rate_s must be in [0, 1] s, got {self.learning_rate_s!r}")
-        if not (math.isfinite(self.weight_limit_s) and 0.0 < self.weight_limit_s <= 2.0):
-            raise ValueError(f"learner.weight_limit_s must be in (0, 2] s, got {self.weight_limit_s!r}")
+        check_settings(self, "learner")
 
 
 class GatedMemory:

@@ -20,25 +20,23 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
+from controller.settings.schema import check_settings, setting
+
 
 @dataclass(frozen=True)
 class RangeFilterConfig:
-    """Attributes:
-    noise_m: standard deviation of one reading [m]; default 0.02.
-    accel_noise_m_s2: white-acceleration process noise [m/s^2]; default 0.3 (the sensor rides
-        the carriage, which runs at constant speed).
-    max_range_m: readings beyond this are out of range [m]; default 3.0.
-    stale_s: with no valid reading for this long the estimate is withdrawn [s]; default 0.25.
-    gate_sigma: innovation gate for outliers [standard deviations]; default 5.0.
-    reacquire_after: consecutive outliers that mean a new target; default 3.
-    """
+    """The filter. The process noise is small: the sensor rides the carriage, which runs at
+    constant speed."""
 
-    noise_m: float = 0.02
-    accel_noise_m_s2: float = 0.3
-    max_range_m: float = 3.0
-    stale_s: float = 0.25
-    gate_sigma: float = 5.0
-    reacquire_after: int = 3
+    noise_m: float = setting(0.02, "m", 0.0001, 1.0, "standard deviation of one range reading")
+    accel_noise_m_s2: float = setting(0.3, "m/s^2", 0.0, 100.0, "white-acceleration process noise")
+    max_range_m: float = setting(3.0, "m", 0.01, 100.0, "readings beyond this are out of range")
+    stale_s: float = setting(0.25, "s", 0.001, 10.0, "no valid reading for this long: no target")
+    gate_sigma: float = setting(5.0, "standard deviations", 0.5, 100.0, "innovation gate for outliers")
+    reacquire_after: int = setting(3, "readings", 1, 1000, "consecutive outliers that mean a new target")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "range_filter")
 
 
 class RangeFilter:

@@ -25,29 +25,26 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
-if TYPE_CHECKING:  # the config imports this module; the CPG imports the config
-    from controller.motion.cpg import CpgOutput
+from controller.motion.cpg import CpgOutput
+from controller.settings.schema import check_settings, setting
 
 
 @dataclass(frozen=True)
 class ReflexConfig:
-    """Attributes:
-    touchdown_phase: swing phase after which a foot contact is a touchdown [0-1]; default 0.8.
-    on_top_height_m: foot height above the ground at contact that means it landed on something
-        [m]; default 0.025.
-    refractory_s: minimum time between two contact reflexes [s]; default 1.0 (about a step
-        cycle: a collision and what follows from it in the same step are one reflex).
-    lift_range_m: gated range below which the lift reflex fires [m]; default 0.40.
-    lift_amplitude: CPG amplitude during a lift [x the normal step height]; default 1.9.
-    """
+    """The reflexes. The default ``refractory_s`` is about a step cycle: a collision and what
+    follows from it in the same step are one reflex."""
 
-    touchdown_phase: float = 0.8
-    on_top_height_m: float = 0.025
-    refractory_s: float = 1.0
-    lift_range_m: float = 0.40
-    lift_amplitude: float = 1.9
+    touchdown_phase: float = setting(0.8, "(fraction of the swing)", 0.0, 1.0,
+                                     "after this a foot contact is a touchdown")
+    on_top_height_m: float = setting(0.025, "m", 0.0, 0.5, "foot contact this high means it landed on something")
+    refractory_s: float = setting(1.0, "s", 0.0, 10.0, "minimum time between two contact reflexes")
+    lift_range_m: float = setting(0.40, "m", 0.0, 3.0, "gated range below which the lift reflex fires")
+    lift_amplitude: float = setting(1.9, "x step height", 0.1, 5.0, "CPG amplitude during a lift")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "reflexes")
 
 
 @dataclass(frozen=True)

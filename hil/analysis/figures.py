@@ -21,8 +21,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-from hil.analysis.metrics import autocorrelation_peak, footfall_std_by_step, load_run  # noqa: E402
+from hil.analysis.metrics import autocorrelation_peak, footfall_std_by_step, late_window, load_run  # noqa: E402
 from hil.analysis.stats import mean_ci95, running_success  # noqa: E402
+from hil.experiments.methods import DEFAULT_METHOD, resolve  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -37,9 +38,10 @@ def _save(fig, out: Path, name: str) -> list[Path]:
 
 
 def learning_curve(trials: list[dict[str, Any]], out: Path, window: int = 10) -> dict[str, list[float]]:
-    """Success per trial and its running mean over ``window`` trials."""
+    """Success per trial of one run and its running mean over ``window`` trials
+    (:func:`hil.analysis.stats.running_success`, as in :func:`success_curves`)."""
     success = np.array([1.0 if t["success"] else 0.0 for t in trials])
-    running = [float(success[max(0, i - window + 1) : i + 1].mean()) for i in range(len(success))]
+    running = running_success(success, window)
     fig, ax = plt.subplots(figsize=(6, 3.2))
     ax.plot(np.arange(1, len(success) + 1), success, ".", color="0.6", label="trial")
     ax.plot(np.arange(1, len(success) + 1), running, "-", color="C0", label=f"mean of last {window}")
@@ -76,12 +78,17 @@ def footfall_spread(std_by_step: list[float | None], out: Path, name: str = "foo
 # -- learning curves over seeds ----------------------------------------------------------------
 
 
-def success_curves(curves: dict[str, list[list[bool]]], out: Path, name: str = "learning_curve_seeds",
-                   window: int = 10) -> dict[str, dict[str, Any]]:
+SUCCESS_CURVES_TITLE = "Learning to step over the obstacle (mean, 95% interval over seeds)"
+
+
+def success_curves(curves: dict[str, Sequence[Sequence[bool]]], out: Path, name: str = "learning_curve_seeds",
+                   window: int = 10, title: str = SUCCESS_CURVES_TITLE) -> dict[str, dict[str, Any]]:
     """Running ``window``-trial success of each seed, and per label its mean over the seeds with
     a 95% t-interval (shaded, clipped to [0, 1] as plotted and returned). ``curves`` maps a label
-    (e.g. "learning", "no learning") to one list of per-trial successes per seed; seeds are cut
-    to the shortest."""
+    (e.g. "learning", "no learning", or a sweep's methods) to one list of per-trial successes per
+    seed; seeds are cut to the shortest. The one success-curve plot: ``figures`` and the sweep's
+    report (:mod:`hil.analysis.report`) both draw with it. Returns, per label, ``trial``
+    (1-based), ``mean``, ``ci95_low``, ``ci95_high`` and ``seeds``."""
     if not curves:
         raise ValueError("success_curves needs at least one label")
     if window < 1:
@@ -99,8 +106,7 @@ def success_curves(curves: dict[str, list[list[bool]]], out: Path, name: str = "
         ax.fill_between(trial, lo, hi, color=colour, alpha=0.2, lw=0)
         ax.plot(trial, mean, "-", color=colour, label=f"{label} ({len(seeds)} seed{'s' if len(seeds) != 1 else ''})")
         data[label] = {"trial": trial, "mean": mean, "ci95_low": lo, "ci95_high": hi, "seeds": len(seeds)}
-    ax.set(xlabel="trial", ylabel=f"success, last {window} trials", ylim=(-0.05, 1.05),
-           title="Learning to step over the obstacle (mean, 95% interval over seeds)")
+    ax.set(xlabel="trial", ylabel=f"success, last {window} trials", ylim=(-0.05, 1.05), title=title)
     ax.legend(loc="lower right", fontsize="small")
     _save(fig, out, name)
     return data
@@ -289,11 +295,16 @@ def burst_over_approach(trace: dict[str, Sequence[float]], out: Path, *,
 
 
 def run_label(config: dict[str, Any]) -> str:
-    """How a run is named in a legend: "learning", "no learning" or its method."""
+    """How a run is named in a legend: "learning" (the paper's learner), "no learning" or its
+    method's registry name (an old run's ``learner`` is the paper's)."""
     if not config.get("learning", True):
         return "no learning"
-    method = config.get("method", "learner")
-    return "learning" if method == "learner" else str(method)
+    name = config.get("method", DEFAULT_METHOD)
+    try:
+        name = resolve(name).name
+    except ValueError:  # a method no longer registered: its own name
+        return str(name)
+    return "learning" if name == DEFAULT_METHOD else name
 
 
 def _height_of(config: dict[str, Any]) -> float | None:
@@ -302,8 +313,7 @@ def _height_of(config: dict[str, Any]) -> float | None:
 
 
 def _late_window(runs: list[dict[str, Any]]) -> tuple[int, int]:
-    n = min(len(r["trials"]) for r in runs)
-    return (101, 150) if n >= 150 else (max(1, n - 49), n)
+    return late_window(min(len(r["trials"]) for r in runs))
 
 
 def _traced_pair(run: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]] | None:

@@ -5,10 +5,9 @@
 from __future__ import annotations
 
 import json
-import math
 import statistics
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -36,6 +35,35 @@ def window_success(trials: list[dict], first: int, last: int) -> float | None:
     """Mean success over trials numbered ``first..last`` (1-based, inclusive)."""
     window = trials[first - 1 : last]
     return sum(t["success"] for t in window) / len(window) if window else None
+
+
+def _succeeded(trial: Any) -> bool:
+    return bool(trial["success"] if isinstance(trial, dict) else trial)
+
+
+def success_last(trials: Sequence[Any], n: int = 50) -> float | None:
+    """Success rate over the last ``n`` trials (``success_last_50`` is ``n`` = 50).
+
+    The one rule for a run of fewer than ``n`` trials: the rate over all of them (a run stopped
+    early or a short HIL session still reports how it did); None for a run without trials.
+    ``trials``: trial dicts (their ``success``) or the outcomes as booleans.
+    """
+    if n < 1:
+        raise ValueError(f"n must be at least 1 trial, got {n}")
+    last = list(trials)[-n:]
+    return sum(_succeeded(t) for t in last) / len(last) if last else None
+
+
+def last_window(n_trials: int, size: int = 50) -> tuple[int, int]:
+    """The last ``size`` trials of a run of ``n_trials`` as (first, last), 1-based, inclusive
+    (all of them if fewer)."""
+    return max(1, n_trials - size + 1), n_trials
+
+
+def late_window(n_trials: int) -> tuple[int, int]:
+    """The window where learning is judged finished: trials 101-150 if the run has them, else
+    its last 50 trials (:func:`last_window`)."""
+    return (101, 150) if n_trials >= 150 else last_window(n_trials)
 
 
 def mistakes_101_150(trials: list[dict]) -> int | None:
@@ -126,7 +154,7 @@ def analyze(folders: list[str | Path]) -> dict[str, Any]:
             row["weights_autocorrelation_peak"] = peak["peak"]
         per_seed.append(row)
     n_trials = min(len(r["trials"]) for r in runs)
-    late = (101, 150) if n_trials >= 150 else (max(1, n_trials - 49), n_trials)
+    late = late_window(n_trials)
     strides = [s for r in runs for t in r["trials"] for s in np.diff(t["footfalls_m"][:-1]).tolist()[:2]]
     return {
         "runs": per_seed,

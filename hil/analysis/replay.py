@@ -30,10 +30,10 @@ import cantools
 
 from controller.config import ControllerConfig
 from controller.loop import ControlLoop
+from hil.session.recorder import SET_INPUT_POS, sent_by_controller
+from protocol import SENSOR_BOARD_NODE_ID, split_arbitration_id
 from protocol.contract import DBC_PATH, BusContract
 
-CONTROLLER_CMDS = BusContract.load().odrive_master_cmds  # the DBC's messages sent by the Controller
-SET_INPUT_POS = 12
 PRE_START_S = 0.5
 
 
@@ -54,8 +54,7 @@ class ReplayBus:
         pass
 
 
-def _is_controller(msg: can.Message) -> bool:
-    return (msg.arbitration_id >> 5) != 16 and ((msg.arbitration_id & 0x1F) in CONTROLLER_CMDS or msg.is_remote_frame)
+_is_controller = sent_by_controller  # the recorder's rule: the contract's master messages
 
 
 def _align(inbound: list[can.Message], t_log: list[float], counts: list[int]) -> int:
@@ -107,7 +106,7 @@ def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, ti
         if new_tick:
             ticks.append(m.timestamp)
             new_tick = False
-        if (m.arbitration_id & 0x1F) == SET_INPUT_POS and (m.arbitration_id >> 5) == hip_id:
+        if split_arbitration_id(m.arbitration_id) == (hip_id, SET_INPUT_POS):
             new_tick = True
     offset = 0.0
     if tick_times is not None and clock_offset_s is not None:
@@ -140,9 +139,9 @@ def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, ti
     return {"log": str(log), "frames": len(frames), "ticks": n_ticks,
             "tick_source": "live ticks and frame counts" if ticks_done else ("live ticks" if offset else "log"), "phase": loop.phase.value,
             "steps": steps, "reflexes": len(loop.stats.reflexes),
-            "sent_set_input_pos": sum(1 for m in bus.sent if (m.arbitration_id & 0x1F) == SET_INPUT_POS),
+            "sent_set_input_pos": sum(1 for m in bus.sent if split_arbitration_id(m.arbitration_id)[1] == SET_INPUT_POS),
             "logged_set_input_pos": sum(1 for m in frames if _is_controller(m)
-                                        and (m.arbitration_id & 0x1F) == SET_INPUT_POS)}
+                                        and split_arbitration_id(m.arbitration_id)[1] == SET_INPUT_POS)}
 
 
 def compare(replayed: list[dict[str, Any]], live: list[dict[str, Any]]) -> dict[str, Any]:
@@ -165,7 +164,7 @@ def compare(replayed: list[dict[str, Any]], live: list[dict[str, Any]]) -> dict[
 
 
 def main_replay(args) -> int:
-    from controller.settings.daemon import load_controller_config
+    from hil.analysis.legacy_config import load_controller_config
     from controller.daemon.run import read_records
 
     log = Path(args.log)
@@ -251,7 +250,7 @@ def _decode(args) -> int:
             continue
         name = route.codec.name
         message = db.get_message_by_name(name)
-        who = "sensor_board" if route.node_id == 16 else f"node {route.node_id}"
+        who = "sensor_board" if route.node_id == SENSOR_BOARD_NODE_ID else f"node {route.node_id}"
         if msg.is_remote_frame:
             print(f"{head} {who} {name} (remote request)")
             continue

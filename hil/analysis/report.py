@@ -21,8 +21,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hil.analysis.figures import _save  # noqa: E402  (one way to write PNG + SVG)
-from hil.analysis.stats import mean_ci95, running_success  # noqa: E402
+from controller.atomic import write_text_atomic  # noqa: E402
+from hil.analysis.figures import _save, success_curves  # noqa: E402  (one way to write PNG + SVG; one curve plot)
+from hil.experiments.methods import resolve  # noqa: E402
 from hil.experiments.sweep import cells_from_json, height_tag  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -98,32 +99,6 @@ def headline_table(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return table
 
 
-
-
-def success_curves(curves: dict[str, list[Sequence[bool]]], title: str, out: Path, name: str,
-                   window: int = WINDOW) -> dict[str, dict[str, Any]]:
-    """Running ``window``-trial success, mean and 95% t-interval over seeds, one line per method.
-
-    ``curves`` maps a method to its seeds' trial outcomes. Returns, per method, ``trial``
-    (1-based), ``mean``, ``low``, ``high`` (as :func:`hil.analysis.stats.mean_ci95` gives them; the drawn
-    band is clipped to [0, 1]) and ``seeds``.
-    """
-    data: dict[str, dict[str, Any]] = {}
-    fig, ax = plt.subplots(figsize=(6.5, 3.6))
-    for i, (method, seeds) in enumerate(curves.items()):
-        if not seeds:
-            continue
-        mean, low, high = mean_ci95([running_success(s, window) for s in seeds])
-        trial = list(range(1, len(mean) + 1))
-        data[method] = {"trial": trial, "mean": mean, "low": low, "high": high, "seeds": len(seeds)}
-        ax.plot(trial, mean, "-", color=f"C{i}", label=f"{method} ({len(seeds)} seeds)")
-        ax.fill_between(trial, np.clip(low, 0, 1), np.clip(high, 0, 1), color=f"C{i}", alpha=0.2, lw=0)
-    ax.set(xlabel="trial", ylabel=f"success, last {window} trials", ylim=(-0.05, 1.05), title=title)
-    ax.legend(loc="lower right", fontsize="small")
-    _save(fig, out, name)
-    return data
-
-
 def criterion_bars(table: Sequence[dict[str, Any]], out: Path, name: str = "criterion_bars") -> dict[str, Any]:
     """Bars by method, one per height: mean trials to criterion (over the seeds that reached it)
     and mean success over the last 50 trials. Returns ``methods``, ``heights`` (labels) and, per
@@ -181,20 +156,18 @@ def _mistakes_text(e: dict[str, Any]) -> str:
             f"({e['seeds_without_mistakes_after_100']} of {e['seeds']} seeds made none)")
 
 
-NAMES = {"learner": "The learner (Elegant Stepping)", "rl": "Reinforcement learning (rl)",
-         "none": "Without adaptation (none), the leg", "oracle": "The oracle", "context": "The context learner"}
-
-
 def headline_sentences(table: Sequence[dict[str, Any]]) -> dict[str, list[str]]:
-    """Per height label: trials to criterion and mistakes after 100 of learner, rl and none, and
-    the oracle's success, each stated only if the method is in the sweep."""
+    """Per height label, one sentence per method in the sweep, as its registry entry says
+    (:attr:`hil.experiments.methods.Method.sentence`): trials to criterion and mistakes after 100
+    (the paper's learner, rl, none), or the success rate (the oracle)."""
     out: dict[str, list[str]] = {}
     for e in table:
         lines = out.setdefault(height_label(e["obstacle_height_m"]), [])
-        if e["method"] in ("learner", "rl", "none"):
-            lines.append(f"{NAMES[e['method']]} {_ttc_text(e)}, and {_mistakes_text(e)}.")
-        elif e["method"] == "oracle":
-            lines.append(f"{NAMES['oracle']} succeeded in {_pct(e['success_rate_mean'])} of all trials "
+        method = resolve(e["method"])
+        if method.sentence == "criterion":
+            lines.append(f"{method.label} {_ttc_text(e)}, and {_mistakes_text(e)}.")
+        elif method.sentence == "success":
+            lines.append(f"{method.label} succeeded in {_pct(e['success_rate_mean'])} of all trials "
                          f"({_pct(e['success_last_50_mean'])} over the last 50; mean of {e['seeds']} seeds).")
     return out
 
@@ -242,15 +215,15 @@ def write_report(out_dir: str | Path) -> dict[str, Any]:
     figure_files: list[tuple[str, str]] = []
     for height in sorted(by_height, key=lambda h: (isinstance(h, tuple), h)):
         label, name = height_label(height), f"success_curves_{height_tag(height)}"
-        curves[label] = success_curves(by_height[height], f"Running success ({WINDOW} trials), obstacle {label}",
-                                       fig_dir, name)
+        curves[label] = success_curves(by_height[height], fig_dir, name, window=WINDOW,
+                                       title=f"Running success ({WINDOW} trials), obstacle {label}")
         figure_files.append((f"Success curves, obstacle {label}", f"figures/{name}.png"))
     bars = criterion_bars(table, fig_dir)
     figure_files.append(("Trials to criterion and success over the last 50 trials", "figures/criterion_bars.png"))
 
     cmd = (f"elegant-stepping sweep --out {out} --seeds {_seeds_text(config['seeds'])} "
            f"--obstacle-heights-m {','.join(f'{h:g}' for h in config['obstacle_heights_m'])} "
-           f"--methods {','.join(config['methods'])} --trials {config['trials']}"
+           f"--methods {','.join(resolve(m).name for m in config['methods'])} --trials {config['trials']}"
            + (" --mixed-heights" if config["mixed_heights"] else ""))
     md = ["# Sweep report", "",
           "## Configuration", "",
@@ -271,7 +244,7 @@ def write_report(out_dir: str | Path) -> dict[str, Any]:
     md += ["## Figures", ""]
     for caption, path in figure_files:
         md += [f"![{caption}]({path})", ""]
-    (out / "report.md").write_text("\n".join(md))
+    write_text_atomic(out / "report.md", "\n".join(md))
     log.info("wrote %s", out / "report.md")
     return {"table": table, "sentences": sentences, "curves": curves, "bars": bars, "missing": missing,
             "report": out / "report.md"}

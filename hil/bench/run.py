@@ -24,7 +24,6 @@ from __future__ import annotations
 import platform
 import statistics
 import time
-import uuid
 from typing import Any
 
 import can

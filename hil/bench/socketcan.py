@@ -8,7 +8,7 @@ Linux VM, :mod:`hil.uml.runner`), three runs one after the other:
    clock: the jitter and late ticks this platform gives a loop that does nothing.
 2. ``echo``: one process, paced the same way, sends one Set_Input_Pos frame per axis each tick
    and drains what it receives; another answers each with a Get_Encoder_Estimates frame at once
-   (blocking receive, then send). The harness's bus recorder (:class:`hil.session.run.BusRecorder`,
+   (blocking receive, then send). The harness's bus recorder (:class:`hil.session.recorder.BusRecorder`,
    kernel receive timestamps) measures command-to-feedback exactly as in the HIL session: the
    floor of that latency on this bus.
 3. ``hil``: the real pair, the ``firmware-sim`` process and the ``controller`` daemon, as in
@@ -42,7 +42,6 @@ from pathlib import Path
 from typing import Any, Sequence
 
 NODES = (0, 1)  # the two axes' node ids (ControllerConfig's defaults)
-SET_INPUT_POS, GET_ENCODER_ESTIMATES = 12, 9
 FIGURES = ("period_jitter_p99_us", "period_jitter_median_us", "period_jitter_max_us", "late_ticks_per_10k",
            "command_to_feedback_median_us", "command_to_feedback_p99_us")  # keys of ``figures``
 
@@ -128,6 +127,7 @@ def echo_sender(channel: str, seconds: float, rate_hz: float = 500.0) -> dict:
 
     from controller.daemon.fastbus import lean
     from controller.daemon.pacing import Pacer
+    from hil.session.recorder import SET_INPUT_POS
 
     raw = can.Bus(interface="socketcan", channel=channel)
     bus = lean(raw, timestamps=False)
@@ -157,6 +157,9 @@ def echo_responder(channel: str, idle_timeout_s: float = 2.0) -> dict:
 
     import can
 
+    from hil.session.recorder import GET_ENCODER_ESTIMATES, SET_INPUT_POS
+    from protocol.contract import CMD_ID_MASK
+
     stop = {"flag": False}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(flag=True))
     bus = can.Bus(interface="socketcan", channel=channel)
@@ -170,8 +173,8 @@ def echo_responder(channel: str, idle_timeout_s: float = 2.0) -> dict:
                 break
             first = False
             arb = msg.arbitration_id
-            if arb & 0x1F == SET_INPUT_POS:
-                bus.send(can.Message(arbitration_id=(arb & ~0x1F) | GET_ENCODER_ESTIMATES, data=bytes(msg.data),
+            if arb & CMD_ID_MASK == SET_INPUT_POS:
+                bus.send(can.Message(arbitration_id=(arb & ~CMD_ID_MASK) | GET_ENCODER_ESTIMATES, data=bytes(msg.data),
                                      is_extended_id=False))
                 answered += 1
     finally:
@@ -202,7 +205,7 @@ def run_floor_loop(seconds: float, work: Path, rate_hz: float, late_factor: floa
 
 
 def run_floor_echo(seconds: float, work: Path, channel: str, rate_hz: float) -> dict[str, Any]:
-    from hil.session.run import BusRecorder
+    from hil.session.recorder import BusRecorder
 
     recorder = BusRecorder(channel, work / "echo.log")
     recorder.start()
@@ -234,8 +237,10 @@ def run_hil_pair(seconds: float, work: Path, channel: str, seed: int, bringup_ti
     from controller.settings.file import write_config
     from controller.settings.daemon import session_config
     from controller.daemon.run import read_records
-    from hil.session.run import (BusRecorder, HilError, ScenarioClient, session_controller_config, session_envs,
-                            stop_session)
+    from hil.session.outcome import HilError
+    from hil.session.recorder import BusRecorder
+    from hil.session.run import session_controller_config, session_envs, stop_session
+    from hil.session.scenario import ScenarioClient
     from hil.experiments.learn import LearnConfig
 
     ctl_config = session_controller_config(LearnConfig(trials=1, seed=seed))
@@ -244,7 +249,7 @@ def run_hil_pair(seconds: float, work: Path, channel: str, seed: int, bringup_ti
     records_path, ticks_path = work / "controller.jsonl", work / "controller.ticks"
     recorder = BusRecorder(channel, work / "bus.log")
     recorder.start()
-    py = [sys.executable, "-m", "hil.cli.main"]
+    py = [sys.executable, "-m", "hil.cli"]
     bus_args = ["--interface", "socketcan", "--channel", channel]
     addr = f"@elegant-stepping-bench-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     env, fw_env = session_envs()
@@ -354,14 +359,15 @@ def hil_availability(channel: str = "vcan0", mode: str = "auto") -> dict[str, An
 def run_hil_bench(seconds: float = 10.0, seed: int = 0, channel: str = "vcan0", mode: str = "auto") -> dict[str, Any]:
     """The ``hil`` section of ``bench``: natively where ``channel`` can be had, else in one UML VM.
     Never raises for a missing bus: ``available`` is False and ``error``/``install`` say why."""
-    from hil.uml.runner import INSTALL, VcanUnavailable, in_uml, run_in_uml, where
+    from hil.profile import current
+    from hil.uml.runner import INSTALL, VcanUnavailable, run_in_uml, where
 
     try:
         place = where(mode, channel)
     except VcanUnavailable as exc:
         return {"available": False, "ran": False, "error": str(exc), "install": INSTALL}
-    if place == "native" or in_uml():
-        return session(seconds, seed, channel, "uml" if in_uml() else "native")
+    if place == "native" or current().uml:
+        return session(seconds, seed, channel, current().name)
     t0 = time.time()
     out_dir = Path(tempfile.mkdtemp(prefix="es-bench-hil-out-"))
     out = out_dir / "hil.json"
@@ -407,10 +413,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif a.cmd == "echo-responder":
         print(json.dumps(echo_responder(a.channel)))
     else:
-        from hil.uml.runner import in_uml
+        from controller.atomic import write_json_atomic
+        from hil.profile import current
 
-        result = session(a.seconds, a.seed, a.channel, "uml" if in_uml() else "native")
-        Path(a.out).write_text(json.dumps(result, indent=1) + "\n")
+        result = session(a.seconds, a.seed, a.channel, current().name)
+        write_json_atomic(a.out, result, indent=1)
     return 0
 
 

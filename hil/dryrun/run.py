@@ -39,11 +39,12 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 import uuid
 from pathlib import Path
 from typing import Any
+
+from controller.atomic import write_json_atomic
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -58,20 +59,21 @@ def _first(*paths: Path) -> Path:
 UNIT = _first(REPO / "deploy" / "elegant-stepping-controller.service",
               Path("/etc/systemd/system/elegant-stepping-controller.service"))
 SIM_CONFIG = _first(REPO / "configs" / "sim.toml", Path("/usr/local/share/elegant-stepping/sim.toml"))
-INSTALLED = "/usr/local/bin/elegant-stepping"
+INSTALLED = "/usr/local/bin/elegant-stepping-leg"
 WATCHDOG_PID_SHIM = 'WATCHDOG_PID=$$; export WATCHDOG_PID; exec "$@"'
 
 
 # -- the command line ---------------------------------------------------------------------------
 def program_argv(program: str) -> tuple[list[str], str]:
-    """The program to run for the unit's ``program`` path: itself where it exists, else this
-    environment's console script, else this interpreter with ``-m hil.cli.main``."""
+    """The program to run for the unit's ``program`` path (the leg's console script,
+    ``elegant-stepping-leg``): itself where it exists, else this environment's script of the same
+    name, else this interpreter with ``-m controller.cli`` (the same entry point)."""
     if os.path.exists(program) and os.access(program, os.X_OK):
         return [program], "as in the unit"
-    script = Path(sys.executable).with_name("elegant-stepping")
+    script = Path(sys.executable).with_name(Path(program).name)
     if script.exists():
         return [str(script)], f"{program} is not installed here: this environment's {script}"
-    return [sys.executable, "-m", "hil.cli.main"], f"{program} is not installed here: {sys.executable} -m hil.cli.main"
+    return [sys.executable, "-m", "controller.cli"], f"{program} is not installed here: {sys.executable} -m controller.cli"
 
 
 def swap_config(argv: list[str], config: str) -> tuple[list[str], str | None]:
@@ -128,25 +130,27 @@ class Deployment:
 def platform_config(path: Path, folder: Path, channel: str) -> tuple[Path, list[str]]:
     """The simulated leg's config as this platform runs it: ``path`` itself natively; inside
     User-Mode Linux a copy in ``folder`` with the node-silence timeout of a ``hil`` session there
-    (:data:`hil.session.run.UML_SILENCE_PERIODS`). Checks that its bus is SocketCAN ``channel``.
+    (:attr:`hil.profile.Profile.min_silence_periods`). Checks that its bus is SocketCAN ``channel``.
     Returns the file and what was changed."""
     from controller.settings.file import load_config, write_config
-    from hil.session.run import UML_SILENCE_PERIODS, uml_patient
-    from hil.uml.runner import in_uml
+    from hil.profile import current
+
+    profile = current()
 
     config = load_config(path)
     if (config.bus.interface, config.bus.channel) != ("socketcan", channel):
         raise ValueError(f"{path}: the simulated leg's config must be on socketcan {channel}, "
                          f"not {config.bus.interface} {config.bus.channel}")
     ctl = config.controller
-    if not in_uml() or ctl.silence_periods >= UML_SILENCE_PERIODS:
+    least = profile.min_silence_periods
+    if least is None or ctl.silence_periods >= least:
         return path, []
-    ctl = uml_patient(ctl)
+    ctl = profile.controller_config(ctl)
     copy = folder / f"{path.stem}-uml.toml"
     write_config(copy, dataclasses.replace(config, controller=ctl),
                  header=f"{path} as the dry run runs it inside User-Mode Linux (hil.dryrun.run)")
     return copy, [f"inside User-Mode Linux: silence_periods {config.controller.silence_periods:g} -> "
-                  f"{UML_SILENCE_PERIODS:g} (as every hil session there), in a copy {copy.name}"]
+                  f"{least:g} (as every hil session there), in a copy {copy.name}"]
 
 
 # -- the checklist ------------------------------------------------------------------------------
@@ -224,14 +228,16 @@ def run_dryrun(*, unit: str | Path = UNIT, config: str | Path | None = None, sec
                quiet: bool = False) -> dict[str, Any]:
     """The dry run on a vcan ``channel`` that is up (see the module docstring); writes
     ``out/dryrun.json``, ``out/controller.log``, ``out/firmware.log``; returns the report."""
-    from hil.session.run import HilError, ScenarioClient, session_envs, stop_session
     from hil.dryrun.notify_listener import NotifyListener
-    from hil.uml.runner import in_uml
+    from hil.profile import current
+    from hil.session.outcome import HilError
+    from hil.session.run import session_envs, stop_session
+    from hil.session.scenario import ScenarioClient
 
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    # inside User-Mode Linux, write to the guest's tmpfs (a host write stalls the VM); copy at the end
-    work = Path(tempfile.mkdtemp(prefix="es-dryrun-", dir="/dev/shm")) if in_uml() and os.path.isdir("/dev/shm") else out
+    profile = current()
+    work = profile.work_folder(out, "es-dryrun-")  # copied out at the end if elsewhere
     config, platform = platform_config(Path(SIM_CONFIG if config is None else config).resolve(), work, channel)
     dep = Deployment.from_unit(unit, str(config))
     dep.swaps += platform
@@ -245,7 +251,7 @@ def run_dryrun(*, unit: str | Path = UNIT, config: str | Path | None = None, sec
     fw_log = open(work / "firmware.log", "w")
     ctl_log = open(work / "controller.log", "w")
     firmware = subprocess.Popen(
-        [sys.executable, "-m", "hil.cli.main", "firmware-sim", "--interface", "socketcan", "--channel", channel,
+        [sys.executable, "-m", "hil.cli", "firmware-sim", "--interface", "socketcan", "--channel", channel,
          "--seed", str(seed), "--scenario", addr],
         stdout=fw_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=fw_env)
     listener = NotifyListener()
@@ -316,11 +322,11 @@ def run_dryrun(*, unit: str | Path = UNIT, config: str | Path | None = None, sec
                           "options, the journal (see controller.log)"],
         "watchdog_usec": int(round(dep.watchdog_s * 1e6)),
         "seconds": seconds,
-        "where": "uml" if in_uml() else "native",
+        "where": profile.name,
         "notifications": [{"t_s": m.t_s - (t_start or 0.0), "pid": m.pid, **m.fields} for m in listener.snapshot()],
         "final": {k: v for k, v in final.items() if k != "weights"},
     }
-    (work / "dryrun.json").write_text(json.dumps(report, indent=1) + "\n")
+    write_json_atomic(work / "dryrun.json", report, indent=1)
     if work != out:
         for f in work.iterdir():
             shutil.copy2(f, out / f.name)
@@ -354,7 +360,8 @@ def add_dryrun_args(p: argparse.ArgumentParser) -> None:
 
 
 def main_dryrun(args: argparse.Namespace) -> int:
-    from hil.uml.runner import VcanUnavailable, in_uml, run_in_uml, where
+    from hil.profile import current
+    from hil.uml.runner import VcanUnavailable, run_in_uml, where
 
     if not (math.isfinite(args.seconds) and args.seconds > 0):
         raise ValueError(f"--seconds must be positive, got {args.seconds}")
@@ -364,13 +371,13 @@ def main_dryrun(args: argparse.Namespace) -> int:
         print(f"elegant-stepping dryrun: {exc}", file=sys.stderr)
         return 3
     out = Path(args.out).resolve()
-    if place == "uml" and not in_uml():
+    if place == "uml" and not current().uml:
         from hil.dryrun.unitfile import read_unit, time_span_s, value
 
         unit = read_unit(args.unit)
         budget = 120.0 + args.seconds + sum(time_span_s(value(unit, "Service", k, "90s"))
                                             for k in ("TimeoutStartSec", "TimeoutStopSec"))
-        argv = [sys.executable, "-m", "hil.cli.main", "dryrun", "--seconds", str(args.seconds), "--unit",
+        argv = [sys.executable, "-m", "hil.cli", "dryrun", "--seconds", str(args.seconds), "--unit",
                 str(Path(args.unit).resolve()), "--out", str(out), "--channel", args.channel, "--where", "native",
                 "--quiet"]
         if args.config is not None:

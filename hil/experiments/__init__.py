@@ -1,1 +1,11 @@
-"""hil.experiments: (to be described)."""
+"""Experiments: walking, learning runs and sweeps, each seeded.
+
+:mod:`hil.experiments.methods` is the method registry, the only place a method is added
+(``paper``, ``context``, ``none``, ``oracle``, ``rl``); :mod:`hil.experiments.learn` runs learning
+trials with one of them; :mod:`hil.experiments.sweep` runs seeds x heights x methods on a process
+pool or Dask; :mod:`hil.experiments.walk` walks on flat ground; :mod:`hil.experiments.oracle` is the
+planner given the true distance.
+
+May import: ``controller``, ``firmware_sim``, ``protocol``, :mod:`hil.lockstep`,
+:mod:`hil.analysis`; tqdm and dask inside the functions that need them.
+"""

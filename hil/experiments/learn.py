@@ -11,7 +11,6 @@ gated burst changes) and learned (its weights) is read from the controller's own
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
 import time
@@ -21,6 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from controller.atomic import write_json_atomic
 from controller.config import ControllerConfig
 from controller.stepping.context import ContextPremotor
 from controller.stepping.learner import AdaptivePremotor
@@ -28,8 +28,9 @@ from controller.supervisor import Phase
 from controller.stepping.weights import save_weights
 from firmware_sim.leg import LegHardware
 from firmware_sim.plant import Obstacle
-from hil.analysis.metrics import footfall_std_by_step, mistakes_101_150, window_success
+from hil.analysis.metrics import footfall_std_by_step, last_window, mistakes_101_150, window_success
 from hil.lockstep.groundtruth import FootfallTracker
+from hil.experiments.methods import DEFAULT_METHOD, get as get_method
 from hil.lockstep.harness import Lockstep, LockstepConfig
 
 log = logging.getLogger(__name__)
@@ -52,8 +53,9 @@ class LearnConfig:
             [m]; uniform, default 2.2-2.9 (two strides of spread, inside the sensor's 3 m).
         past_obstacle_m: a trial ends when the hip is this far past the far edge [m]; 0.45.
         learning: False freezes the weights at zero (the no-adaptation baseline); default True.
-        method: which premotor drives the burst length (see :mod:`hil.experiments.methods`); default
-            "learner" (the Elegant Stepping model).
+        method: which premotor drives the burst length: a name of the method registry
+            (:data:`hil.experiments.methods.METHODS`); default "paper" (the Elegant Stepping model).
+            A method that does not learn (``none``) sets ``learning`` False.
         trace_trials: 0-based indices of trials whose foot path and burst length are recorded
             at ``trace_rate_hz`` into the trial's ``trace`` (Fig. 2, burst against time);
             negative indices count from the end; default none.
@@ -72,12 +74,14 @@ class LearnConfig:
     start_max_m: float = 2.9
     past_obstacle_m: float = 0.45
     learning: bool = True
-    method: str = "learner"
+    method: str = DEFAULT_METHOD
     trace_trials: tuple[int, ...] = ()
     trace_rate_hz: float = 100.0
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 
     def __post_init__(self) -> None:
+        if not get_method(self.method).learns:  # a registry name (else ValueError); ``none`` never learns
+            object.__setattr__(self, "learning", False)
         if not 1 <= self.trials <= 100000:
             raise ValueError(f"trials must be in [1, 100000], got {self.trials}")
         for h in (self.obstacle_height_m, *self.obstacle_heights_m):
@@ -103,37 +107,15 @@ class LearnConfig:
         return LockstepConfig(seed=self.seed, hardware=replace(hw, sensor=sensor), controller=ctl)
 
 
-def make_premotor(config: LearnConfig, truth: Callable[[], float | None]):
-    """The premotor module of a method other than the learner (the controller's default).
-
-    ``truth()`` is the true distance from the foot to the obstacle's near edge [m] (None with no
-    obstacle): ground truth that only the oracle is given.
-    """
-    ctl = config.controller
-    if config.method == "oracle":
-        from hil.experiments.oracle import OraclePremotor
-
-        return OraclePremotor(ctl, truth)
-    if config.method == "rl":
-        from controller.stepping.rl import QLearnerConfig, QLearningPremotor
-
-        return QLearningPremotor(ctl.encoder.n_cells, ctl.cpg.burst_s, QLearnerConfig(seed=config.seed))
-    if config.method == "context":
-        from controller.stepping.context import ContextPremotor
-
-        learner = ctl.learner if config.learning else replace(ctl.learner, learning=False)
-        return ContextPremotor(ctl.height.n_contexts, ctl.encoder.n_cells, ctl.cpg.burst_s, learner)
-    raise ValueError(f"method {config.method!r} is not available")
-
-
 class LearningRun:
     """One learning run: build with a config, call :meth:`run`, read ``trials`` and the weights."""
 
     def __init__(self, config: LearnConfig, premotor=None) -> None:
         self.config = config
         self._near_m: float | None = None  # the current obstacle's near edge (ground truth)
-        if premotor is None and config.method not in ("learner", "none"):
-            premotor = make_premotor(config, self._true_distance_m)
+        if premotor is None:  # None from the registry too: the controller's own premotor
+            premotor = get_method(config.method).build(config.controller, config.learning, config.seed,
+                                                      self._true_distance_m)
         self.ls = Lockstep(config.lockstep(), premotor=premotor)
         self.rng = np.random.default_rng(config.seed)
         self.tracker = FootfallTracker(self.ls.plant)
@@ -301,9 +283,7 @@ def run_learning(config: LearnConfig, out_dir: str | Path | None = None, progres
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        tmp = out / "metrics.json.tmp"
-        tmp.write_text(json.dumps(metrics, indent=1) + "\n")
-        tmp.replace(out / "metrics.json")
+        write_json_atomic(out / "metrics.json", metrics, indent=1)
         if isinstance(premotor, (AdaptivePremotor, ContextPremotor)):  # (n_cells,) or (n_contexts, n_cells)
             save_weights(out / "weights.npz", premotor.weights, config.controller.encoder.cell_width_m)
         if figures:
@@ -319,5 +299,22 @@ def write_figures(out: Path, metrics: dict[str, Any], premotor) -> None:
     figures.learning_curve(trials, fig_dir)
     if isinstance(premotor, AdaptivePremotor):
         figures.weights_by_distance(premotor.weights, metrics["config"]["controller"]["encoder"]["cell_width_m"], fig_dir)
-    late = (max(1, len(trials) - 49), len(trials))
+    late = last_window(len(trials))
     figures.footfall_spread(footfall_std_by_step([metrics], *late), fig_dir)
+
+
+def learn_config(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],
+                 **overrides: Any) -> LearnConfig:
+    """The learning run's configuration for ``method``; a tuple of heights mixes them per trial."""
+    m = get_method(method)
+    heights = tuple(obstacle_height_m) if isinstance(obstacle_height_m, (tuple, list)) else ()
+    height = heights[0] if heights else float(obstacle_height_m)
+    return LearnConfig(trials=trials, seed=seed, obstacle_height_m=height, obstacle_heights_m=heights,
+                       learning=m.learns, method=m.name, **overrides)
+
+
+def run_method(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],
+               out_dir: str | Path | None = None, progress: bool = False, **overrides: Any) -> dict[str, Any]:
+    """Run one sweep cell; the metrics have the format of ``elegant-stepping learn``."""
+    config = learn_config(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m, **overrides)
+    return run_learning(config, out_dir=out_dir, progress=progress)

@@ -1,38 +1,110 @@
-"""The methods a sweep compares, each run through the same plant, bus and controller loop.
+"""The method registry: every method a learning run or a sweep can use, and the only place one is added.
 
-- ``learner``: the Elegant Stepping model (reflex-trained weights on gated range cells).
+Each method runs through the same plant, bus and controller loop; what differs is the premotor
+module that sets the CPG's burst length:
+
+- ``paper``: the Elegant Stepping model (reflex-trained weights on gated range cells): the
+  controller's own premotor.
+- ``context``: the paper's learner with the obstacle height as context (see
+  :mod:`controller.stepping.context`).
 - ``none``: no adaptation (the weights stay at zero: the CPG's natural stride).
 - ``oracle``: a geometric planner that knows the exact distance (see :mod:`hil.experiments.oracle`).
 - ``rl``: reinforcement learning on the same gated encoder (see :mod:`controller.stepping.rl`).
-- ``context``: the learner with the obstacle height as context (see :mod:`controller.stepping.context`).
 
-:func:`run_method` runs one (method, obstacle height, seed) cell and returns the same metrics as
-``elegant-stepping learn`` (``config``, ``trials``, ``summary``), written to ``out_dir`` if given.
+To add a method, add one :class:`Method` to :data:`REGISTRY`; ``learn --method``, ``sweep
+--methods``, the sweep's report and the figures' legends all read it from here.
+
+This module imports nothing heavy at module level (no simulation, no pybullet): parsing and
+validating method names is cheap. The builders import what they need when called.
+
+It imports no experiment: the learning run (:mod:`hil.experiments.learn`, which also has
+:func:`~hil.experiments.learn.run_method` for one sweep cell) reads it.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Any, Callable, Optional
 
-from hil.experiments.learn import LearnConfig, run_learning
+from controller.config import ControllerConfig
 
-METHODS = ("learner", "none", "oracle", "rl", "context")
-
-
-def learn_config(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],
-                 **overrides: Any) -> LearnConfig:
-    """The learning run's configuration for ``method``; a tuple of heights mixes them per trial."""
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
-    heights = tuple(obstacle_height_m) if isinstance(obstacle_height_m, (tuple, list)) else ()
-    height = heights[0] if heights else float(obstacle_height_m)
-    return LearnConfig(trials=trials, seed=seed, obstacle_height_m=height, obstacle_heights_m=heights,
-                       learning=method != "none", method=method, **overrides)
+Truth = Callable[[], Optional[float]]
+PremotorBuilder = Callable[[ControllerConfig, bool, int, Truth], Any]
+"""``build(controller, learning, seed, truth)``: the premotor of a run, or None for the controller's own."""
 
 
-def run_method(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],
-               out_dir: str | Path | None = None, progress: bool = False, **overrides: Any) -> dict[str, Any]:
-    """Run one sweep cell; the metrics have the format of ``elegant-stepping learn``."""
-    config = learn_config(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m, **overrides)
-    return run_learning(config, out_dir=out_dir, progress=progress)
+def _controller_default(controller: ControllerConfig, learning: bool, seed: int, truth: Truth) -> None:
+    """None: the controller's own premotor (:class:`controller.stepping.learner.AdaptivePremotor`),
+    learning or frozen as ``learning`` says."""
+    return None
+
+
+def _oracle(controller: ControllerConfig, learning: bool, seed: int, truth: Truth):
+    from hil.experiments.oracle import OraclePremotor
+
+    return OraclePremotor(controller, truth)
+
+
+def _rl(controller: ControllerConfig, learning: bool, seed: int, truth: Truth):
+    from controller.stepping.rl import QLearnerConfig, QLearningPremotor
+
+    return QLearningPremotor(controller.encoder.n_cells, controller.cpg.burst_s, QLearnerConfig(seed=seed))
+
+
+def _context(controller: ControllerConfig, learning: bool, seed: int, truth: Truth):
+    from controller.stepping.context import ContextPremotor
+
+    learner = controller.learner if learning else replace(controller.learner, learning=False)
+    return ContextPremotor(controller.height.n_contexts, controller.encoder.n_cells, controller.cpg.burst_s, learner)
+
+
+@dataclass(frozen=True)
+class Method:
+    """One method.
+
+    Attributes:
+        name: the registry name (``learn --method``, ``sweep --methods``, cell folder names).
+        label: how the sweep's report names it in a sentence.
+        learns: whether its runs learn (False: ``LearnConfig.learning`` is False in a sweep).
+        sentence: what the sweep report's headline says of it: ``"criterion"`` (trials to
+            criterion and mistakes after trial 100), ``"success"`` (its success rate), or None.
+        build: ``build(controller, learning, seed, truth)`` returns the premotor module of a run
+            (its controller configuration, whether it learns, its seed), or None for the controller's own. ``truth()`` is the true distance from the foot to the
+            obstacle's near edge [m] (None with no obstacle): ground truth only the oracle uses.
+    """
+
+    name: str
+    label: str
+    learns: bool
+    build: PremotorBuilder
+    sentence: str | None = "criterion"
+
+
+REGISTRY: dict[str, Method] = {m.name: m for m in (
+    Method("paper", "The learner (Elegant Stepping)", True, _controller_default),
+    Method("context", "The context learner", True, _context, sentence=None),
+    Method("none", "Without adaptation (none), the leg", False, _controller_default),
+    Method("oracle", "The oracle", True, _oracle, sentence="success"),
+    Method("rl", "Reinforcement learning (rl)", True, _rl),
+)}
+METHODS: tuple[str, ...] = tuple(REGISTRY)  # the names, e.g. for argparse ``choices``
+DEFAULT_METHOD = "paper"
+DEFAULT_SWEEP_METHODS: tuple[str, ...] = ("paper", "none", "oracle", "rl")
+
+# Older sweep folders and learn output folders name the paper's learner "learner" (in
+# config.json, summary.json, the cells' folder names and metrics.json). Only reading them
+# resolves this alias (:func:`resolve`); new runs and sweeps take registry names only.
+ALIASES: dict[str, str] = {"learner": "paper"}
+
+
+def get(name: str) -> Method:
+    """The method registered as ``name`` (registry names only)."""
+    try:
+        return REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown method {name!r}; choose from {', '.join(METHODS)}") from None
+
+
+def resolve(name: str) -> Method:
+    """The method of a name read from an existing output folder: a registry name or an old alias."""
+    return get(ALIASES.get(name, name))

@@ -4,8 +4,8 @@ The "model the world, then plan" approach the paper argues against, given everyt
 at every step onset it reads the true distance from the stance foot to the obstacle's near edge
 (ground truth from the simulation, never from the bus) and plans the remaining strides so that the
 last footfall before the obstacle lands at ``takeoff_m`` from the near edge, the middle of the
-take-off window (measured without adaptation at 0.08 m: successes for last footfalls from about
--0.195 to -0.08 m). It splits the remaining distance into the whole number of strides closest to
+take-off window (the last footfalls from which the leg clears a 0.08 m obstacle without
+adaptation). It splits the remaining distance into the whole number of strides closest to
 the natural stride, each within the CPG's burst bounds, and sets the burst for the coming swing:
 ``stride = v * (stance + burst)``.
 
@@ -26,8 +26,7 @@ from controller.config import ControllerConfig
 class OracleConfig:
     """Attributes:
     takeoff_m: planned last footfall relative to the near edge [m]; default -0.16 (the foot
-        settles about 2.5 cm past the plan, measured: footfalls near -0.115 for a plan of -0.14;
-        so -0.16 lands near the window's middle).
+        settles a few cm past the plan, so -0.16 lands near the take-off window's middle).
     """
 
     takeoff_m: float = -0.16

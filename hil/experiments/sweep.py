@@ -1,6 +1,6 @@
 """The sweep engine: every (method, obstacle height, seed) cell on a process pool or a Dask cluster.
 
-A cell is one learning run, :func:`hil.experiments.methods.run_method`, written to ``DIR/cells/<cell>/``
+A cell is one learning run, :func:`hil.experiments.learn.run_method`, written to ``DIR/cells/<cell>/``
 (``metrics.json``, ``weights.npz``). The pool and the Dask path submit the same top-level,
 picklable function, :func:`run_cell`. A sweep is resumable: a cell whose ``metrics.json`` parses and
 has the cell's configuration is not run again; a corrupt or mismatched one is run again (with a
@@ -33,13 +33,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
+from controller.atomic import write_json_atomic
+from hil.analysis.metrics import success_last
 from hil.analysis.stats import trials_to_criterion
+from hil.experiments.methods import DEFAULT_SWEEP_METHODS, METHODS
 
 log = logging.getLogger(__name__)
 
-# the methods of hil.experiments.methods (kept here so that parsing a sweep does not import the simulation)
-KNOWN_METHODS = ("learner", "none", "oracle", "rl", "context")
-DEFAULT_METHODS = ("learner", "none", "oracle", "rl")
+DEFAULT_METHODS = DEFAULT_SWEEP_METHODS
 MIN_HEIGHT_M, MAX_HEIGHT_M = 0.03, 0.20  # as hil.experiments.learn.LearnConfig: the sensor sees above 3 cm
 
 Height = float | tuple[float, ...]
@@ -73,7 +74,7 @@ def parse_heights(text: str) -> tuple[float, ...]:
 
 
 def parse_methods(text: str) -> tuple[str, ...]:
-    """Methods from a comma list such as ``"learner,none"``."""
+    """Methods from a comma list such as ``"paper,none"`` (checked by :class:`SweepConfig`)."""
     return tuple(p.strip() for p in str(text).split(",") if p.strip())
 
 
@@ -88,7 +89,8 @@ class Cell:
     """One learning run of a sweep.
 
     Attributes:
-        method: the method (see :mod:`hil.experiments.methods`).
+        method: the method's registry name (:mod:`hil.experiments.methods`); a cell read from an
+            older sweep folder may carry the old alias ``learner``.
         obstacle_height_m: obstacle height [m]; a tuple mixes these heights, one drawn per trial.
         seed: the run's seed.
         trials: number of trials.
@@ -141,8 +143,8 @@ class SweepConfig:
         seeds: the runs' seeds (start distances and sensor noise); default 0..9.
         obstacle_heights_m: obstacle heights [m], each in (0.03, 0.20], one scenario each;
             default (0.08,).
-        methods: the methods compared, in report order (learner, none, oracle, rl, context);
-            default learner, none, oracle, rl.
+        methods: the methods compared, in report order: names of the method registry
+            (:data:`hil.experiments.methods.METHODS`); default paper, none, oracle, rl.
         trials: trials per run, >= 1; default 150.
         mixed_heights: True makes ``obstacle_heights_m`` ONE scenario in which each trial draws
             its height from the list; default False.
@@ -178,8 +180,8 @@ class SweepConfig:
             if not (isinstance(h, (int, float)) and math.isfinite(h) and MIN_HEIGHT_M < h <= MAX_HEIGHT_M):
                 raise ValueError(f"obstacle_heights_m: each must be in ({MIN_HEIGHT_M}, {MAX_HEIGHT_M}] m, got {h!r}")
         for m in self.methods:
-            if m not in KNOWN_METHODS:
-                raise ValueError(f"methods: unknown method {m!r}; choose from {', '.join(KNOWN_METHODS)}")
+            if m not in METHODS:
+                raise ValueError(f"methods: unknown method {m!r}; choose from {', '.join(METHODS)}")
         if isinstance(self.trials, bool) or not isinstance(self.trials, int) or not 1 <= self.trials <= 100000:
             raise ValueError(f"trials: must be an integer in [1, 100000], got {self.trials!r}")
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
@@ -213,13 +215,12 @@ def summary_row(cell: Cell, success: Sequence[bool]) -> dict[str, Any]:
 
     ``trials_to_criterion``: trials run before the first 10-trial window at least 90% successful
     (None if never); ``mistakes_after_100``: failures among trials 101..N (None if N <= 100);
-    ``success_last_50``: success rate over the last 50 trials (all of them if fewer);
+    ``success_last_50``: :func:`hil.analysis.metrics.success_last` over 50 trials;
     ``success_rate``: over all trials.
     """
     s = [bool(x) for x in success]
     if not s:
         raise ValueError(f"success: cell {cell.name} has no trials")
-    last = s[-50:]
     return {
         "method": cell.method,
         "obstacle_height_m": list(cell.obstacle_height_m) if isinstance(cell.obstacle_height_m, tuple)
@@ -228,7 +229,7 @@ def summary_row(cell: Cell, success: Sequence[bool]) -> dict[str, Any]:
         "trials": len(s),
         "trials_to_criterion": trials_to_criterion(s, window=10, threshold=0.9),
         "mistakes_after_100": sum(not x for x in s[100:]) if len(s) > 100 else None,
-        "success_last_50": sum(last) / len(last),
+        "success_last_50": success_last(s, 50),
         "success_rate": sum(s) / len(s),
         "cell": cell.name,
     }
@@ -239,7 +240,7 @@ def run_cell(method: str, seed: int, trials: int, obstacle_height_m: Height, out
     [s] and, if it raised, the error (the exception is caught here so that it always pickles)."""
     t0 = time.perf_counter()
     try:
-        from hil.experiments.methods import run_method
+        from hil.experiments.learn import run_method
 
         run_method(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m, out_dir=out_dir)
         error = tb = None
@@ -313,12 +314,6 @@ def _on_dask(todo: list[Cell], out_dir: Path, address: str, workers: int) -> Ite
             cluster.close()
 
 
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    tmp.replace(path)
-
-
 def run_sweep(config: SweepConfig, progress: bool = True) -> dict[str, Any]:
     """Run the sweep's unfinished cells; write ``config.json``, ``summary.json`` and ``timing.json``.
 
@@ -330,7 +325,7 @@ def run_sweep(config: SweepConfig, progress: bool = True) -> dict[str, Any]:
     wall0 = time.perf_counter()
     out = config.out_dir.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    _write_json(out / "config.json", config.to_json())
+    write_json_atomic(out / "config.json", config.to_json())
     cells = config.cells()
     rows: dict[str, dict[str, Any]] = {}
     timing: dict[str, dict[str, Any]] = {}
@@ -373,8 +368,8 @@ def run_sweep(config: SweepConfig, progress: bool = True) -> dict[str, Any]:
 
     failed = [c.name for c in cells if timing[c.name]["status"] == "failed"]
     ordered = [rows[c.name] for c in cells if c.name in rows]
-    _write_json(out / "summary.json", ordered)
-    _write_json(out / "timing.json", {
+    write_json_atomic(out / "summary.json", ordered)
+    write_json_atomic(out / "timing.json", {
         "executor": executor,
         "workers": config.workers,
         "total_wall_s": time.perf_counter() - wall0,

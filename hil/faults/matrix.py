@@ -6,9 +6,9 @@ A row is one fault case on one seed (:class:`FaultCase`). Two kinds of case:
   the control): a learning run (:class:`hil.experiments.learn.LearningRun`) with a faulty link
   (:class:`hil.faults.model.FaultyBus`) between the controller and the bus from the first trial on,
   in one or both directions. The controller saves its weights every ``save_every_s`` of walking,
-  as the daemon does. ``success_last_50`` is the learning outcome under that fault; if the
-  controller stopped safely, the run ends there, with ``stopped_at_trial`` and the cause, and
-  ``success_last_50`` is None.
+  as the daemon does. ``success_last_50`` (:func:`hil.analysis.metrics.success_last`) is the
+  learning outcome under that fault; if the controller stopped safely, the run ends there, with
+  ``stopped_at_trial`` and the cause, and ``success_last_50`` is None.
 - **Events** (``silence`` of one node, ``kill`` of the controller, ``cut`` of its cable,
   ``bus_off`` of its CAN interface for ``outage_s``): the leg walks into a trial, the event
   happens 1.5 s in, and the leg runs on until every axis is IDLE (or for 3 s: an outage short
@@ -38,9 +38,10 @@ from typing import Any, Iterable
 import can
 import numpy as np
 
-from controller.config import ControllerConfig
+from controller.atomic import write_json_atomic, write_text_atomic
 from controller.supervisor import Phase
-from hil.faults.model import FAULT_KINDS, FaultSpec
+from hil.faults.audit import CommandAudit
+from hil.faults.model import FAULT_KINDS, NODE_IDS, FaultSpec
 from hil.session.legwatch import Beat, safe_state
 from protocol import BusContract
 
@@ -48,7 +49,6 @@ log = logging.getLogger(__name__)
 
 EVENTS = ("silence", "kill", "cut", "bus_off")
 DIRECTIONS = ("both", "to_leg", "from_leg")
-NODE_IDS = {"hip": 0, "knee": 1, "sensor_board": 16}
 EVENT_AFTER_S = 1.5  # an event happens this long into its trial [s]
 SAFE_WAIT_S = 3.0  # how long the leg runs on after an event, waiting for every axis in IDLE [s]
 
@@ -128,29 +128,6 @@ def default_cases(seeds: Iterable[int] = (0,), loss_seeds: Iterable[int] = ()) -
     return cases
 
 
-class CommandAudit:
-    """Checks every Set_Input_Pos the controller sends against its joint limits (motor side)."""
-
-    def __init__(self, config: ControllerConfig) -> None:
-        contract = BusContract.load()
-        self._unpack = contract.codec("Set_Input_Pos").unpack
-        self._limits: dict[int, tuple[float, float]] = {}
-        for a in config.axes:
-            lo, hi = sorted((a.rad_to_rev(a.min_rad), a.rad_to_rev(a.max_rad)))
-            self._limits[contract.odrive_id(a.node_id, "Set_Input_Pos")] = (lo - 1e-6, hi + 1e-6)
-        self.checked = 0
-        self.outside = 0
-
-    def __call__(self, msg: can.Message) -> None:
-        limits = self._limits.get(msg.arbitration_id)
-        if limits is None:
-            return
-        self.checked += 1
-        pos = self._unpack(msg.data)[0]
-        if not (limits[0] <= pos <= limits[1]):
-            self.outside += 1
-
-
 class HeartbeatWatch:
     """A third node on the lockstep's bus that keeps the axes' heartbeats once ``armed``, as
     :class:`hil.session.legwatch.Beat` on the simulated clock, for :func:`hil.session.legwatch.safe_state` (the
@@ -192,7 +169,7 @@ def _load_back(path: Path, expected: np.ndarray | None, n_cells: int, cell_width
 def run_case(case: FaultCase, trials: int, out_dir: str | Path, save_every_s: float = 10.0) -> dict[str, Any]:
     """Run one case; write its row to ``out_dir/<name>/row.json`` and return it."""
     from controller.stepping.weights import save_weights
-    from hil.analysis.metrics import mistakes_101_150, window_success
+    from hil.analysis.metrics import mistakes_101_150, success_last, window_success
     from hil.experiments.learn import LearnConfig, LearningRun
 
     out = Path(out_dir) / case.name
@@ -203,7 +180,7 @@ def run_case(case: FaultCase, trials: int, out_dir: str | Path, save_every_s: fl
     run = LearningRun(config)
     ls, loop = run.ls, run.ls.loop
     ctl = config.controller
-    audit = CommandAudit(ctl)
+    audit = CommandAudit.from_config(ctl)
     node_ids = {a.name: a.node_id for a in ctl.axes}
     watch: HeartbeatWatch | None = None  # opened only when needed: an unread bus end fills up
     row: dict[str, Any] = {**dataclasses.asdict(case), "where": "lockstep", "safe_state_ms": None,
@@ -235,8 +212,7 @@ def run_case(case: FaultCase, trials: int, out_dir: str | Path, save_every_s: fl
                     break
             if stopped is None:
                 save(ls.t_s)
-                n = len(run.trials)
-                row["success_last_50"] = window_success(run.trials, n - 49, n) if n >= 50 else None
+                row["success_last_50"] = success_last(run.trials, 50)
                 row["mistakes_101_150"] = mistakes_101_150(run.trials)
             else:
                 row["stopped_at_trial"], row["stop_cause"] = stopped
@@ -261,8 +237,8 @@ def run_case(case: FaultCase, trials: int, out_dir: str | Path, save_every_s: fl
         if watch is not None:
             watch.bus.shutdown()
         run.close()
-    (out / "row.json").write_text(json.dumps(row, indent=1) + "\n")
-    (out / "trials.json").write_text(json.dumps(run.trials) + "\n")
+    write_json_atomic(out / "row.json", row, indent=1)
+    write_json_atomic(out / "trials.json", run.trials, indent=None)
     return row
 
 
@@ -460,7 +436,7 @@ def main_faults(args) -> int:
 
             hil = {"trials": args.hil_trials, "rows": hil_rows(out / "hil", seed=0, trials=args.hil_trials)}
             done.parent.mkdir(parents=True, exist_ok=True)
-            done.write_text(json.dumps(hil, indent=1) + "\n")
+            write_json_atomic(done, hil, indent=1)
         rows += hil["rows"]
     text = json.dumps(rows, indent=1) + "\n"
     if args.json in (None, "-"):
@@ -468,9 +444,8 @@ def main_faults(args) -> int:
     else:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.with_suffix(".tmp").write_text(text)
-        path.with_suffix(".tmp").replace(path)
-    (out / "report.md").write_text(table(rows))
+        write_text_atomic(path, text)
+    write_text_atomic(out / "report.md", table(rows))
     print(table(rows), file=__import__("sys").stderr)
     bad = [r for r in rows if "error" in r or r.get("commands_outside_limits") or r.get("data_lost")]
     return 1 if bad else 0

@@ -16,11 +16,10 @@ frames that arrive meanwhile are handled in one batch. While the injectors hold 
 held for reordering) it polls every ``poll_s`` to release them on time. Never a spin. A frame
 waits at most ``poll_s`` (plus any fault delay) in the node; a quiet bus costs 20 wake-ups/s.
 
-``poll_s`` is 0.5 ms natively and 2 ms inside User-Mode Linux, where every wake-up and system
-call is a host ptrace round trip on the one virtual CPU that the controller and the plant share.
-Measured there (3-trial ``hil`` sessions through the node, no faults): with 0.5 ms the controller
-had 9-11% late ticks and a period-jitter p99 of 4.7-4.9 ms; with 2 ms, 1.0-1.5% and 1.3-1.5 ms,
-as without the node (1.4%, 1.7 ms). The plant's process also works in 2 ms slices there.
+``poll_s`` comes from the platform profile (:mod:`hil.profile`): 0.5 ms natively and 2 ms inside
+User-Mode Linux, where every wake-up and system call is a host ptrace round trip on the one
+virtual CPU that the controller and the plant share; a shorter poll there costs the controller
+late ticks and period jitter. The plant's process also works in 2 ms slices there.
 
 SIGTERM or SIGINT stops it (exit 0); the counts per direction (frames in, forwarded, each fault,
 silenced, send errors), the silence start and the pacing figures are written as JSON at exit.
@@ -29,7 +28,6 @@ Traffic stays on the two CAN channels: no network address is ever opened.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -41,19 +39,16 @@ from typing import Any, Callable
 import can
 import numpy as np
 
+from controller.atomic import write_json_atomic
 from hil.faults.model import FAULT_KINDS, FaultInjector, FaultSpec
 
 log = logging.getLogger(__name__)
 
-NATIVE_POLL_S = 0.0005  # pause after each batch of frames [s], natively
-UML_POLL_S = 0.002  # the same inside User-Mode Linux [s] (see the module docstring)
-
-
 def default_poll_s() -> float:
-    """The pause after each batch on this platform [s]."""
-    from hil.uml.runner import in_uml
+    """The pause after each batch on this platform [s] (:attr:`hil.profile.Profile.mitm_poll_s`)."""
+    from hil.profile import current
 
-    return UML_POLL_S if in_uml() else NATIVE_POLL_S
+    return current().mitm_poll_s
 IDLE_WAIT_MS = 50  # longest wait in poll() with nothing held [ms]: how soon a signal's flag is seen
 
 
@@ -174,10 +169,7 @@ def _open(channel: str) -> tuple[can.BusABC, can.BusABC]:
 def _write_json(path: str | Path | None, data: dict[str, Any]) -> None:
     if path is None:
         return
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1) + "\n")
-    tmp.replace(path)
+    write_json_atomic(path, data, indent=1)
 
 
 class WakeStats:

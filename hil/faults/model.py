@@ -37,7 +37,12 @@ from typing import Callable, Iterable
 import can
 import numpy as np
 
+from protocol import SENSOR_BOARD_NODE_ID
+
 FAULT_KINDS = ("drop", "delay", "duplicate", "reorder", "corrupt")
+# the nodes a fault can silence, by name: the leg's axes (firmware_sim.leg.LegHardware's node ids)
+# and the sensor board
+NODE_IDS = {"hip": 0, "knee": 1, "sensor_board": SENSOR_BOARD_NODE_ID}
 
 
 @dataclass(frozen=True)

@@ -43,26 +43,27 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from hil.faults.model import FAULT_KINDS, FaultSpec
+from hil.faults.audit import CommandAudit
+from hil.faults.model import FAULT_KINDS, NODE_IDS, FaultSpec
+from hil.profile import named as profile_named
 from hil.session.legwatch import HeartbeatWatcher, safe_state
+from hil.session.outcome import HilError, session_ok
 
 if TYPE_CHECKING:
     from controller.config import ControllerConfig
-    from hil.session.run import BusRecorder, ScenarioClient
+    from hil.session.recorder import BusRecorder
+    from hil.session.scenario import ScenarioClient
 
 log = logging.getLogger(__name__)
 
 LEG_CHANNEL = "vcan1"
 EVENT_AFTER_S = 1.0  # an event happens this long after its trial was requested [s]
 SAFE_WAIT_S = 3.0  # after the bound, how much longer to wait for every axis in IDLE [s]
-# How far past the bound a safe state may come and still count as in time [ms], by platform.
-# The drivers' watchdog and heartbeat run on the plant's simulated time, paced to the wall clock
-# in 1 ms (natively) or 2 ms slices (User-Mode Linux); when the plant's process is not scheduled,
-# both come late by that stall. Inside UML (one virtual CPU near saturation) the plant's longest
-# pacing period measured in these sessions was 37 ms; with the mitm's 2 ms poll: 50 ms. Natively,
-# 20 ms. The bound itself is not widened: ``within_bound`` reports against bound + tolerance, and
-# ``safe_state_ms`` and ``bound_ms`` are both in the metrics.
-TOLERANCE_MS = {"native": 20.0, "uml": 50.0}
+# How far past the bound a safe state may come and still count as in time: the platform
+# profile's safe_state_tolerance_ms (hil.profile). The drivers' watchdog and heartbeat run on the
+# plant's simulated time, paced to the wall clock; when the plant's process is not scheduled, both
+# come late by that stall. The bound itself is not widened: ``within_bound`` reports against
+# bound + tolerance, and ``safe_state_ms`` and ``bound_ms`` are both in the metrics.
 
 
 def leg_axes() -> dict[str, int]:
@@ -201,14 +202,12 @@ class FaultSession:
     def start(self, timeout_s: float = 30.0) -> None:
         """Start the heartbeat watcher on the leg's channel and the mitm node; wait until the
         mitm has both channels open."""
-        from hil.session.run import HilError
-
         plan = self.plan
         self.watcher = HeartbeatWatcher(plan.leg_channel, self.axes)
         self.watcher.start()
         ready = self.work / "mitm.ready"
         ready.unlink(missing_ok=True)
-        cmd = [sys.executable, "-m", "hil.cli.main", "mitm", "--controller-channel", self.channel,
+        cmd = [sys.executable, "-m", "hil.cli", "mitm", "--controller-channel", self.channel,
                "--leg-channel", plan.leg_channel, "--to-leg", plan.to_leg, "--from-leg", plan.from_leg,
                "--seed", str(plan.seed), "--json", str(self.work / "mitm.json"), "--ready-file", str(ready)]
         if plan.silence_node is not None:
@@ -269,8 +268,6 @@ class FaultSession:
         """Called just after trial ``index`` was requested. In the event's trial: wait
         ``event_after_s``, make the event, wait for every axis's heartbeat to report IDLE (up to
         the bound plus :data:`SAFE_WAIT_S`). Returns True when the session must run no more trials."""
-        from hil.session.run import HilError
-
         plan = self.plan
         if plan.event_trial is None or index != plan.event_trial:
             return False
@@ -329,8 +326,7 @@ class FaultSession:
         if plan.kind == "rate":
             sec["controller_exit_expected"] = rc_controller == 0
             return sec
-        where_key = "uml" if where == "uml" else "native"
-        tolerance = TOLERANCE_MS[where_key]
+        tolerance = profile_named(where).safe_state_tolerance_ms
         hb = safe_state(beats, list(self.axes), self.t_event_unix) if self.t_event_unix is not None else {}
         ms = hb.get("safe_state_ms")
         drivers = {}
@@ -379,12 +375,12 @@ def command_audit(recorder: "BusRecorder", bye: dict[str, Any]) -> dict[str, Any
     controller: dict[str, int] | None = None
     commanded = getattr(recorder, "commanded", None)
     if commanded is not None and axes:
-        controller = {}
+        limits = {node: tuple((axes.get(name) or {}).get("pos_limits_rev", [None, None]))
+                  for node, name in by_node.items()}
+        audit = CommandAudit(limits)
         for node, values in commanded.items():
-            name = by_node.get(node)
-            lo, hi = (axes.get(name) or {}).get("pos_limits_rev", [None, None])
-            controller[name or str(node)] = sum(1 for v in values if not math.isfinite(v)
-                                                or (lo is not None and v < lo) or (hi is not None and v > hi))
+            audit.check_all(node, values)
+        controller = {by_node.get(node) or str(node): audit.by_node.get(node, 0) for node in commanded}
     return {
         "controller_outside_limits": None if controller is None else sum(controller.values()),
         "controller_by_axis": controller,
@@ -412,8 +408,6 @@ def fault_problems(m: dict[str, Any], trials: int) -> list[str]:
     """What went wrong in a fault session (empty: nothing); the expected outcomes of the fault
     itself (a controller killed with -9, a safe stop after a silence, watchdog trips after a
     kill, fewer trials after an event) are not problems."""
-    from hil.session.run import session_ok
-
     f, h = m["fault"], m["hil"]
     problems = []
     if f.get("mitm_exit_code") != 0:
@@ -463,7 +457,6 @@ def fault_summary(m: dict[str, Any]) -> str:
 
 
 # -- the fault matrix's HIL rows -------------------------------------------------------------------
-NODE_IDS = {"hip": 0, "knee": 1, "sensor_board": 16}
 
 
 def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, trials: int, *,
@@ -478,7 +471,7 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
     """
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    argv = [sys.executable, "-m", "hil.cli.main", "hil", "--trials", str(trials), "--seed", str(seed), "--out", str(out),
+    argv = [sys.executable, "-m", "hil.cli", "hil", "--trials", str(trials), "--seed", str(seed), "--out", str(out),
             "--where", where, "--quiet"]
     if kind == "kill":
         argv += ["--kill-controller-at-trial", str(at_trial)]
@@ -510,6 +503,8 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
     if not path.exists():
         row["error"] = f"hil wrote no metrics (exit {done.returncode}): {done.stderr[-500:]}"
         return row
+    from hil.analysis.metrics import success_last
+
     m = json.loads(path.read_text())
     f, h = m.get("fault", {}), m["hil"]
     cmds, weights = f.get("commands", {}), f.get("weights", {})
@@ -539,7 +534,7 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
         "driver_targets_outside_limits": cmds.get("driver_targets_outside_limits"),
         "data_lost": data_lost,
         "weights": weights,
-        "success_last_50": None if event else _success_last(m.get("trials", []), 50),
+        "success_last_50": None if event else success_last(m.get("trials", []), 50),
         "trials_completed": h.get("trials_completed"),
         "stopped_at_trial": f.get("at_trial") if event else None,
         "fault_cause": h.get("fault_cause"),
@@ -560,12 +555,6 @@ def hil_rows(out: str | Path, seed: int = 0, trials: int = 10) -> list[dict[str,
     return [run_hil_fault("kill", None, seed, out / "kill", 3),
             run_hil_fault("silence", None, seed, out / "silence_hip", 3, node="hip"),
             run_hil_fault("drop", 0.05, seed, out / "drop_0.05", trials)]
-
-
-def _success_last(trials: list[dict[str, Any]], n: int) -> float | None:
-    """Success rate over the last ``n`` trials (all of them when fewer), None without trials."""
-    last = trials[-n:]
-    return sum(bool(t["success"]) for t in last) / len(last) if last else None
 
 
 __all__ = ["FaultPlan", "FaultSession", "add_hil_fault_args", "fault_problems", "run_hil_fault", "hil_rows"]

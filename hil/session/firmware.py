@@ -20,12 +20,10 @@ checked at every wake-up of the plant, so to 1 ms natively, 2 ms inside User-Mod
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
 import signal
-import socket
 import time
 from dataclasses import replace
 from typing import Any
@@ -37,77 +35,12 @@ from firmware_sim.plant import Obstacle, RigConfig
 from controller.daemon.fastbus import lean
 from hil.lockstep.groundtruth import FootfallTracker
 from controller.daemon.pacing import Pacer
+from hil.session.scenario import SideChannel
 from protocol import AxisError, AxisState
 
 log = logging.getLogger(__name__)
 
 REWIND_AFTER_M = 150.0
-
-
-def unix_address(addr: str) -> str:
-    """``@name`` -> abstract-namespace address; anything else is a path."""
-    return "\0" + addr[1:] if addr.startswith("@") else addr
-
-
-class SideChannel:
-    """A non-blocking JSON-lines server for one client at a time."""
-
-    def __init__(self, addr: str) -> None:
-        self.server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        real = unix_address(addr)
-        if not real.startswith("\0") and os.path.exists(real):
-            os.unlink(real)
-        self.server.bind(real)
-        self.server.listen(1)
-        self.server.setblocking(False)
-        self.client: socket.socket | None = None
-        self._buf = b""
-
-    def poll(self) -> list[dict[str, Any]]:
-        if self.client is None:
-            try:
-                self.client, _ = self.server.accept()
-                self.client.setblocking(False)
-            except BlockingIOError:
-                return []
-        try:
-            chunk = self.client.recv(65536)
-        except BlockingIOError:
-            return []
-        except OSError:
-            chunk = b""
-        if not chunk:
-            self.client.close()
-            self.client = None
-            return [{"op": "disconnected"}]
-        self._buf += chunk
-        out = []
-        while b"\n" in self._buf:
-            line, self._buf = self._buf.split(b"\n", 1)
-            if line.strip():
-                try:
-                    out.append(json.loads(line))
-                except ValueError:
-                    out.append({"op": "bad", "line": line[:200].decode(errors="replace")})
-        return out
-
-    def send(self, msg: dict[str, Any]) -> None:
-        if self.client is None:
-            return
-        data = (json.dumps(msg) + "\n").encode()
-        self.client.setblocking(True)
-        try:
-            self.client.sendall(data)
-        except OSError:
-            pass
-        finally:
-            if self.client is not None:
-                self.client.setblocking(False)
-
-    def close(self) -> None:
-        if self.client is not None:
-            self.client.close()
-        self.server.close()
 
 
 class Scenario:
@@ -246,9 +179,9 @@ def run_firmware(bus_kw: dict[str, Any], *, seed: int = 0, gui: bool = False, sc
     scen = Scenario(leg)
     chan = SideChannel(scenario) if scenario else None
     if steps_per_wake is None:
-        from hil.uml.runner import in_uml
+        from hil.profile import current
 
-        steps_per_wake = 2 if in_uml() else 1
+        steps_per_wake = current().plant_steps_per_wake
     k = max(1, int(steps_per_wake))
     pacer = Pacer(leg.dt_s * k, catch_up=True)
     watchdog_trips = 0

@@ -31,196 +31,30 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import shutil
 import signal
-import socket
-import struct
 import subprocess
 import sys
-import tempfile
-import threading
 import time
 import uuid
-from array import array
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import can
 import numpy as np
 
-from hil.analysis.busload import bus_load_from_log
-from protocol import BusContract
+from controller.atomic import write_json_atomic
 from controller.daemon.run import phases_seen, read_records
+from hil.analysis.busload import bus_load_from_log
+from hil.profile import Profile, current as current_profile
+from hil.session.outcome import HilError, session_ok
+from hil.session.recorder import BusRecorder
+from hil.session.scenario import ScenarioClient
 
 if TYPE_CHECKING:
     from controller.config import ControllerConfig
     from hil.faults.session import FaultPlan, FaultSession
     from hil.experiments.learn import LearnConfig
-
-CONTROLLER_CMDS = BusContract.load().odrive_master_cmds  # the DBC's messages sent by the Controller
-SET_INPUT_POS, GET_ENCODER_ESTIMATES = 12, 9
-_F32 = struct.Struct("<f")  # Set_Input_Pos's Input_Pos [rev]
-SENSOR_BOARD_NODE = 16
-
-
-UML_SILENCE_PERIODS = 10.0  # the controller's node-silence timeout inside UML [heartbeat periods] (3.5 natively)
-
-
-def _in_uml() -> bool:
-    from hil.uml.runner import in_uml
-
-    return in_uml()
-
-
-class HilError(RuntimeError):
-    pass
-
-
-# -- the bus recorder ---------------------------------------------------------------------------
-class BusRecorder(threading.Thread):
-    """Records every frame on the channel with python-can's writer for ``path``'s suffix, counts
-    frames each way and measures command-to-feedback latency. Drains a non-blocking socket every
-    10 ms (one system call per frame). With ``audit_commands``, it also keeps every Set_Input_Pos
-    target [rev] per node in ``commanded`` (to count targets outside the joint limits later)."""
-
-    def __init__(self, channel: str, path: Path, audit_commands: bool = False) -> None:
-        super().__init__(name="bus-recorder", daemon=True)
-        from controller.daemon.fastbus import lean
-
-        self.raw = can.Bus(interface="socketcan", channel=channel)
-        for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
-            if opt is None:
-                continue
-            try:  # room for a second of traffic between drains
-                self.raw.socket.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
-                break
-            except OSError:
-                continue
-        self.bus = lean(self.raw)
-        self.writer = can.Logger(str(path))
-        self.path = path
-        self.stop_event = threading.Event()
-        self.frames = 0
-        self.to_leg = 0
-        self.from_leg = 0
-        self.by_id: dict[int, int] = {}
-        self._pending: dict[int, float] = {}
-        self.latency_s: list[float] = []
-        self.commanded: dict[int, array] | None = {} if audit_commands else None
-        self.error: str | None = None
-
-    def _take(self, msg: can.Message) -> None:
-        self.writer.on_message_received(msg)
-        self.frames += 1
-        arb = msg.arbitration_id
-        self.by_id[arb] = self.by_id.get(arb, 0) + 1
-        node, cmd = arb >> 5, arb & 0x1F
-        if node != SENSOR_BOARD_NODE and (cmd in CONTROLLER_CMDS or msg.is_remote_frame):
-            self.to_leg += 1
-            if cmd == SET_INPUT_POS:
-                if node not in self._pending:
-                    self._pending[node] = msg.timestamp
-                if self.commanded is not None and len(msg.data) >= 4:
-                    self.commanded.setdefault(node, array("f")).append(_F32.unpack_from(msg.data)[0])
-        else:
-            self.from_leg += 1
-            if cmd == GET_ENCODER_ESTIMATES and node != SENSOR_BOARD_NODE:
-                t = self._pending.pop(node, None)
-                if t is not None:
-                    self.latency_s.append(msg.timestamp - t)
-
-    def _drain(self) -> None:
-        recv = self.bus.recv
-        msg = recv(0)
-        while msg is not None:
-            self._take(msg)
-            msg = recv(0)
-
-    def run(self) -> None:
-        try:
-            while not self.stop_event.is_set():
-                time.sleep(0.01)
-                self._drain()
-            self._drain()
-        except Exception as exc:  # noqa: BLE001 - reported in the metrics
-            self.error = repr(exc)
-
-    def stop(self) -> None:
-        self.stop_event.set()
-        self.join(timeout=10)
-        self.writer.stop()
-        self.raw.shutdown()
-
-    def summary(self) -> dict[str, Any]:
-        lat = sorted(self.latency_s)
-        q = (lambda p: lat[min(len(lat) - 1, int(math.ceil(p * len(lat))) - 1)] * 1e6) if lat else (lambda p: None)
-        return {
-            "file": str(self.path),
-            "frames": self.frames,
-            "controller_to_leg": self.to_leg,
-            "leg_to_controller": self.from_leg,
-            "command_to_feedback_us": {"median": q(0.5), "p99": q(0.99), "n": len(lat)},
-            "error": self.error,
-        }
-
-
-# -- the side channel's client ----------------------------------------------------------------
-class ScenarioClient:
-    def __init__(self, addr: str, timeout_s: float, alive) -> None:
-        from hil.session.firmware import unix_address
-
-        deadline = time.monotonic() + timeout_s
-        while True:
-            self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            try:
-                self.sock.connect(unix_address(addr))
-                break
-            except OSError:
-                self.sock.close()
-                if not alive():
-                    raise HilError("the firmware-sim process ended before opening its side channel")
-                if time.monotonic() > deadline:
-                    raise HilError(f"no side channel at {addr} after {timeout_s:.0f} s")
-                time.sleep(0.2)
-        self._buf = b""
-
-    def send(self, msg: dict[str, Any]) -> None:
-        self.sock.sendall((json.dumps(msg) + "\n").encode())
-
-    def receive(self, timeout_s: float, alive=lambda: True) -> dict[str, Any]:
-        deadline = time.monotonic() + timeout_s
-        while b"\n" not in self._buf:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise HilError(f"no answer on the side channel within {timeout_s:.0f} s")
-            self.sock.settimeout(min(1.0, left))
-            try:
-                chunk = self.sock.recv(65536)
-            except TimeoutError:
-                if not alive():
-                    raise HilError("a process of the session ended unexpectedly") from None
-                continue
-            if not chunk:
-                raise HilError("the firmware-sim process closed the side channel")
-            self._buf += chunk
-        line, self._buf = self._buf.split(b"\n", 1)
-        return json.loads(line)
-
-    def request(self, msg: dict[str, Any], timeout_s: float = 30.0, expect: str | None = None) -> dict[str, Any]:
-        """Send ``msg``, return the reply; with ``expect``, the first reply whose op it is (a
-        trial's ``trial_done`` sent meanwhile is skipped)."""
-        self.send(msg)
-        deadline = time.monotonic() + timeout_s
-        while True:
-            reply = self.receive(max(1.0, deadline - time.monotonic()))
-            if expect is None or reply.get("op") == expect:
-                return reply
-
-    def close(self) -> None:
-        self.sock.close()
-
 
 # -- the session --------------------------------------------------------------------------------
 def _cpu_s() -> float:
@@ -291,34 +125,20 @@ def assemble_trials(truths: list[dict[str, Any]], records: dict[str, list[dict[s
     return trials
 
 
-def session_controller_config(config: LearnConfig) -> ControllerConfig:
-    """The controller configuration of a session on this platform: the learning run's, with the
-    node-silence timeout of :data:`UML_SILENCE_PERIODS` heartbeat periods inside User-Mode Linux.
-
-    User-Mode Linux is one virtual CPU for both processes, the recorder and the harness, and it
-    runs near saturation: a node can look silent for a few hundred ms while the plant catches up
-    (measured: a 0.35 s gap ended a 5-trial session). The drivers' own watchdogs (0.1 s) still
-    stop the leg; the controller waits longer before calling a node lost.
-    """
-    ctl_config = config.lockstep().controller
-    return uml_patient(ctl_config) if _in_uml() else ctl_config
+def session_controller_config(config: LearnConfig, profile: Profile | None = None) -> ControllerConfig:
+    """The controller configuration of a session on this platform (``profile``, default
+    :func:`hil.profile.current`): the learning run's, as :meth:`hil.profile.Profile.controller_config`
+    adapts it (a longer node-silence timeout inside User-Mode Linux)."""
+    return (profile or current_profile()).controller_config(config.lockstep().controller)
 
 
-def uml_patient(ctl: ControllerConfig) -> ControllerConfig:
-    """``ctl`` waiting at least :data:`UML_SILENCE_PERIODS` heartbeat periods (and as long for a
-    stale heartbeat) before it calls a node lost: how the controller runs inside User-Mode Linux."""
-    return dataclasses.replace(ctl, silence_periods=max(UML_SILENCE_PERIODS, ctl.silence_periods),
-                               stale_heartbeat_periods=max(UML_SILENCE_PERIODS, ctl.stale_heartbeat_periods))
-
-
-def session_envs() -> tuple[dict[str, str], dict[str, str]]:
-    """Environments of the controller and of the firmware-sim process. Inside User-Mode Linux the
-    firmware gets the coarse-clock preload: PyBullet's profiler reads gettimeofday() about 7 times
-    a step, a trapped system call there."""
+def session_envs(profile: Profile | None = None) -> tuple[dict[str, str], dict[str, str]]:
+    """Environments of the controller and of the firmware-sim process; the firmware gets the
+    coarse-clock preload where the profile says so (:attr:`hil.profile.Profile.coarse_time_preload`)."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     fw_env = dict(env)
     coarse = os.environ.get("ELEGANT_STEPPING_UML_COARSE_TIME")
-    if coarse and os.path.exists(coarse) and os.environ.get("ELEGANT_STEPPING_IN_UML") == "1":
+    if coarse and os.path.exists(coarse) and (profile or current_profile()).coarse_time_preload:
         fw_env["LD_PRELOAD"] = coarse
     return env, fw_env
 
@@ -338,9 +158,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     wall0 = time.monotonic()
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    # Inside User-Mode Linux the session writes to the guest's own tmpfs (a write to the host's
-    # file system stalls the whole VM for its duration) and copies the files out at the end.
-    work = Path(tempfile.mkdtemp(prefix="es-hil-", dir="/dev/shm")) if _in_uml() and os.path.isdir("/dev/shm") else out
+    work = current_profile().work_folder(out, "es-hil-")  # copied out at the end if elsewhere
     config = LearnConfig(trials=trials, seed=seed, obstacle_height_m=obstacle_height_m, range_noise_m=range_noise_m,
                          learning=learning)
     ctl_config = session_controller_config(config)
@@ -363,7 +181,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
         (out / stale).unlink(missing_ok=True)
     recorder = BusRecorder(channel, log_path, audit_commands=faults is not None)
     recorder.start()
-    py = [sys.executable, "-m", "hil.cli.main"]
+    py = [sys.executable, "-m", "hil.cli"]
     bus_args = ["--interface", "socketcan", "--channel", channel]
     addr = f"@elegant-stepping-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     env, fw_env = session_envs()
@@ -402,8 +220,8 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     try:
         client = ScenarioClient(addr, max(10.0, deadline - time.monotonic()), alive)
         say(f"firmware-sim up after {time.monotonic() - wall0:.1f} s")
-        # (A real-time priority for the controller inside User-Mode Linux was tried: it starved
-        # the plant there. Both processes run at normal priority.)
+        # Both processes run at normal priority: a real-time controller inside User-Mode Linux
+        # starves the plant there.
         controller = subprocess.Popen(
             [*py, "controller", *bus_args, "--config", str(work / "controller.toml"), "--records", str(records_path),
              "--weights", str(work / "weights.npz"), "--ticks", str(work / "controller.ticks")],
@@ -516,31 +334,12 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
         metrics["hil"]["leg_channel"] = faults.leg_channel
         metrics["fault"] = fs.section(where=where, bye=bye, final=final, rc_controller=rc_controller,
                                       recorder=recorder, out=out)
-    tmp = out / "metrics.json.tmp"
-    tmp.write_text(json.dumps(metrics, indent=1) + "\n")
-    tmp.replace(out / "metrics.json")
+    write_json_atomic(out / "metrics.json", metrics, indent=1)
     return metrics
 
 
-def session_ok(m: dict[str, Any], trials: int) -> list[str]:
-    """What went wrong in a session (empty: nothing)."""
-    h = m["hil"]
-    problems = []
-    if h["error"]:
-        problems.append(h["error"])
-    if h["trials_completed"] != trials:
-        problems.append(f"{h['trials_completed']} of {trials} trials completed")
-    if h["watchdog_trips"] != 0:
-        problems.append(f"watchdog trips: {h['watchdog_trips']}")
-    if "fault" in h["phases"]:
-        problems.append(f"safe stop: {h['fault_cause']}")
-    if not (h["bus"]["controller_to_leg"] and h["bus"]["leg_to_controller"]):
-        problems.append("frames did not flow both ways")
-    return problems
-
-
 def _inner_argv(args, out: Path) -> list[str]:
-    argv = [sys.executable, "-m", "hil.cli.main", "hil", "--trials", str(args.trials), "--seed", str(args.seed),
+    argv = [sys.executable, "-m", "hil.cli", "hil", "--trials", str(args.trials), "--seed", str(args.seed),
             "--out", str(out), "--channel", args.channel, "--obstacle-height-m", str(args.obstacle_height_m),
             "--range-noise-m", str(args.range_noise_m), "--log-format", args.log_format, "--where", "native"]
     if args.no_learning:
@@ -564,13 +363,13 @@ def _fault_plan(args) -> FaultPlan | None:
 
 
 def main_hil(args) -> int:
-    from hil.uml.runner import VcanUnavailable, in_uml, instruction, native_vcan, run_in_uml, where
+    from hil.uml.runner import VcanUnavailable, instruction, native_vcan, run_in_uml, where
 
     plan = _fault_plan(args)
     try:
         place = where(args.where, args.channel)
         if plan is not None and place == "native" and not native_vcan(plan.leg_channel):
-            if args.where != "auto" or in_uml():
+            if args.where != "auto" or current_profile().uml:
                 raise VcanUnavailable(f"the fault options need a second channel {plan.leg_channel!r}: "
                                       f"{instruction(plan.leg_channel, uml_considered=False)}")
             place = where("uml", args.channel)
@@ -578,12 +377,12 @@ def main_hil(args) -> int:
         print(f"elegant-stepping hil: {exc}", file=sys.stderr)
         return 3
     out = Path(args.out).resolve()
-    if place == "uml" and not in_uml():
+    if place == "uml" and not current_profile().uml:
         out.mkdir(parents=True, exist_ok=True)
         budget = args.timeout if args.timeout is not None else 180.0 + 40.0 * args.trials
         t0 = time.time()
         if not args.quiet:
-            print(f"hil: no vcan on this kernel; running the session inside User-Mode Linux", file=sys.stderr)
+            print("hil: no vcan on this kernel; running the session inside User-Mode Linux", file=sys.stderr)
         result = run_in_uml(_inner_argv(args, out), timeout_s=budget + 60.0)
         metrics_path = out / "metrics.json"
         if metrics_path.exists():
@@ -592,12 +391,12 @@ def main_hil(args) -> int:
                 m["hil"]["where"] = "uml"
                 m["hil"]["uml"] = {"boot_to_session_s": m["hil"]["started_unix"] - t0, "wall_s": time.time() - t0,
                                    "exit_code": result.returncode}
-                metrics_path.write_text(json.dumps(m, indent=1) + "\n")
+                write_json_atomic(metrics_path, m, indent=1)
         return result.returncode
     m = run_session(trials=args.trials, seed=args.seed, out=out, channel=args.channel,
                     obstacle_height_m=args.obstacle_height_m, range_noise_m=args.range_noise_m,
                     learning=not args.no_learning, log_format=args.log_format, timeout_s=args.timeout,
-                    quiet=args.quiet, where="uml" if in_uml() else "native", faults=plan)
+                    quiet=args.quiet, where=current_profile().name, faults=plan)
     if plan is not None:
         from hil.faults.session import fault_problems, fault_summary
 

@@ -681,7 +681,7 @@ def test_integrator_does_not_wind_up_while_torque_saturates():
     assert abs(axis.vel_integrator_nm) < 0.05
 
 
-# --------------------------------------------------------------------------- safety latches (issue 6)
+# --------------------------------------------------------------------------- safety latches
 def test_estop_stays_latched_through_idle_calibration_and_time_until_clear_errors():
     axis, plant, _ = make(watchdog_timeout_s=0.0)
     arm(axis)

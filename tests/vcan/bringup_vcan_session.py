@@ -49,7 +49,7 @@ def wait_for_heartbeat(timeout_s: float) -> float | None:
 
 def main(out: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
-    es = [sys.executable, "-m", "hil.cli.main"]
+    es = [sys.executable, "-m", "hil.cli"]
     session: dict = {"silent": run(es + ["bringup", "--channel", CHANNEL, "--json", str(out / "silent.json")], 120)}
     fw_log = (out / "firmware-sim.log").open("w")
     fw = subprocess.Popen(es + ["firmware-sim", "--channel", CHANNEL], stdout=subprocess.DEVNULL, stderr=fw_log,

@@ -13,7 +13,6 @@ import math
 import time
 import uuid
 from dataclasses import replace
-from pathlib import Path
 from typing import Callable
 
 import can
@@ -22,7 +21,8 @@ import pytest
 from controller.bringup.procedure import BringupConfig, run_bringup
 from controller.bringup.move import MoveConfig, choose_step, cosine_ramp, error_names
 from controller.bringup.checklist import Status
-from controller.config import AxisConfig, ControllerConfig
+from controller.config import ControllerConfig
+from controller.io.axis import AxisConfig
 from firmware_sim.leg import LegHardware, SimulatedLeg
 from firmware_sim.odrive_axis import DriverConfig
 from firmware_sim.plant import RigConfig
@@ -138,7 +138,7 @@ def test_a_silent_bus_fails_fast_with_what_to_check():
 
 
 def test_the_command_fails_fast_on_a_silent_bus(capsys):
-    from hil.cli.main import main
+    from hil.cli import main
 
     t0 = time.monotonic()
     rc = main(["bringup", "--interface", "virtual", "--channel", f"silent-{uuid.uuid4().hex}"])
@@ -149,7 +149,7 @@ def test_the_command_fails_fast_on_a_silent_bus(capsys):
 
 
 def test_the_command_exits_2_on_a_missing_config_and_3_without_a_bus(capsys, tmp_path):
-    from hil.cli.main import main
+    from hil.cli import main
 
     assert main(["bringup", "--interface", "virtual", "--channel", "x", "--config", str(tmp_path / "none.toml")]) == 2
     assert main(["bringup", "--interface", "no-such-interface", "--channel", "x"]) == 3
@@ -423,16 +423,3 @@ def test_the_move_stops_when_the_joint_leaves_its_limits():
     watch.encoders[0] = EncoderReading(0.999, hip.rad_to_rev(0.5), 0.0)
     watch.heartbeats[0] = Heartbeat(0.99, int(AxisError.WATCHDOG_TIMER_EXPIRED), int(AxisState.IDLE), 3)
     assert "WATCHDOG_TIMER_EXPIRED" in move._problem(1.0)
-
-
-def test_the_config_comes_from_the_deployment_file(tmp_path):
-    from controller.cli.bringup import load_bringup_config
-
-    config, bus = load_bringup_config(str(Path(__file__).resolve().parents[3] / "configs" / "sim.toml"))
-    assert [(a.name, a.node_id, a.direction) for a in config.axes] == [("hip", 0, 1), ("knee", 1, -1)]
-    assert bus == {"interface": "socketcan", "channel": "vcan0", "bitrate": 1_000_000}
-    assert load_bringup_config(None)[0] == ControllerConfig()
-    bad = tmp_path / "bad.toml"
-    bad.write_text("[axes.knee]\ngear_ratio = -6\n")
-    with pytest.raises(ValueError, match="gear_ratio"):
-        load_bringup_config(str(bad))

@@ -11,11 +11,8 @@ READY, regular pings and STOPPING after SIGTERM.
 
 from __future__ import annotations
 
-import json
 import os
 import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -246,45 +243,6 @@ def test_run_controller_tells_systemd_ready_pings_and_stopping(listener, monkeyp
     assert final["sd_notify"]["pings"] == len(pings)
     assert all(a.state is AxisState.IDLE for a in leg.axes)  # the clean stop's IDLE reached the drivers
     assert not any(int(a.errors) for a in leg.axes)  # on our word, not a watchdog trip
-
-
-# -- end to end: the deployment dry run (vcan) ---------------------------------------------------
-@pytest.mark.vcan
-def test_the_deployment_dry_run_against_the_simulated_leg(tmp_path):
-    """systemd's part, played in full: the unit's own ExecStart (only --config swapped for
-    configs/sim.toml) as a separate process against firmware-sim on vcan0, NOTIFY_SOCKET and
-    WATCHDOG_USEC from the unit; READY, regular pings, STOPPING after SIGTERM, exit 0."""
-    from hil.uml.runner import VcanUnavailable, where
-
-    try:
-        where("auto")
-    except VcanUnavailable as exc:
-        pytest.fail(f"this test needs a SocketCAN vcan0: {exc}", pytrace=False)
-    out = tmp_path / "dryrun"
-    seconds = 6.0
-    done = subprocess.run([sys.executable, "-m", "hil.cli.main", "dryrun", "--seconds", str(seconds), "--out", str(out),
-                           "--quiet"], capture_output=True, text=True, timeout=600, stdin=subprocess.DEVNULL)
-    path = out / "dryrun.json"
-    assert path.exists(), f"no report (exit {done.returncode}):\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
-    report = json.loads(path.read_text())
-    failed = [c for c in report["checks"] if not c["ok"]]
-    log = (out / "controller.log").read_text()[-3000:] if (out / "controller.log").exists() else ""
-    assert done.returncode == 0 and report["ok"] and not failed, f"{done.stdout}\n{failed}\n{report['error']}\n{log}"
-    notes = report["notifications"]
-    pids = {n["pid"] for n in notes}
-    assert len(pids) == 1  # all from the daemon's main pid (NotifyAccess=main)
-    ready = next(i for i, n in enumerate(notes) if n.get("READY") == "1")
-    stopping = next(i for i, n in enumerate(notes) if n.get("STOPPING") == "1")
-    assert ready < stopping and "closed loop" in notes[ready]["STATUS"]
-    assert report["watchdog_usec"] == 1_000_000
-    pings = [n["t_s"] for n in notes[ready:stopping] if n.get("WATCHDOG") == "1"]
-    assert len(pings) >= seconds / 0.5 * 0.5  # every 0.5 s: about 12 in 6 s
-    assert max(np.diff(pings)) < 1.0  # never a gap systemd would have killed it for
-    assert any(n.get("STATUS") == "walking" for n in notes[ready:stopping])
-    assert report["final"]["stopped_by"] == "SIGTERM" and report["final"]["steps"] > 0
-    assert report["final"]["sd_notify"]["errors"] == 0
-    assert report["exec_start"][-2:] == ["--config", "/etc/elegant-stepping/leg.toml"]
-    assert report["ran"][-2] == "--config" and report["ran"][-1].endswith(".toml")
 
 
 def test_a_stuck_loop_stops_pinging_the_drivers_stop_the_leg_and_fault_keeps_pinging(listener, monkeypatch):

@@ -18,7 +18,7 @@ import pytest
 
 from controller.stepping.weights import load_weights, prev_path, save_weights
 from controller.daemon.autosave import AutosaveConfig, WeightAutosave
-from hil.cli.main import main
+from hil.cli import main
 from controller.daemon.run import run_controller
 
 N_CELLS, WIDTH_M = 28, 0.04
@@ -130,7 +130,7 @@ def test_a_signal_stops_the_daemon_with_exit_code_0_and_a_loadable_file(tmp_path
     save_weights(path, W, WIDTH_M)
     config.write_text(f"[controller]\nbringup_timeout_s = {0.1 if fault else 5.0}\n")
     channel = f"weights-{uuid.uuid4().hex[:8]}"
-    proc = subprocess.Popen([sys.executable, "-m", "hil.cli.main", "controller", "--interface", "virtual", "--channel",
+    proc = subprocess.Popen([sys.executable, "-m", "hil.cli", "controller", "--interface", "virtual", "--channel",
                              channel, "--weights", str(path), "--records", str(records), "--config", str(config)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
     wait_for = '"fault"' if fault else '"phase"'

@@ -6,9 +6,8 @@ import math
 
 import pytest
 
-from controller.config import CpgConfig, LegGeometry
-from controller.motion.cpg import RingOscillator
-from controller.motion.kinematics import forward, inverse
+from controller.motion.cpg import CpgConfig, RingOscillator
+from controller.motion.kinematics import LegGeometry, forward, inverse
 from controller.motion.muscle import LowPass
 
 

@@ -7,19 +7,22 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 import uuid
 from pathlib import Path
 
 import pytest
 from hypothesis import given, settings as hypothesis_settings, strategies as st
 
-from controller.config import AxisConfig, ControllerConfig
+from controller.config import ControllerConfig
+from controller.io.axis import AxisConfig
 from controller.settings.file import (MODEL, SECTIONS, BusSettings, ConfigError, DeployConfig, DriverSettings,
                                  WeightsSettings, _build, check_config, config_from_dict, config_from_toml,
                                  load_config, to_toml, toml_string, tomllib, validate_tables,
                                  write_config)
-from hil.cli.main import main
-from controller.settings.daemon import daemon_settings, load_controller_config
+from hil.cli import main
+from controller.settings.daemon import daemon_settings
+from hil.analysis.legacy_config import load_controller_config
 
 ROOT = Path(__file__).resolve().parents[3]
 EXAMPLES = {"sim": ROOT / "configs" / "sim.toml", "odrive-leg": ROOT / "configs" / "odrive-leg.toml"}
@@ -144,8 +147,6 @@ def test_write_config_refuses_an_invalid_config_and_writes_a_valid_one(tmp_path)
 
 # --------------------------------------------------------------------------- the schema
 def test_the_schema_covers_every_field_of_the_dataclasses():
-    from controller.config import AxisConfig
-
     keys = {section: {s.key for s in settings} for section, settings in SECTIONS.items()}
     assert keys["bus"] == {f.name for f in dataclasses.fields(BusSettings)}
     assert keys["drivers"] == {f.name for f in dataclasses.fields(DriverSettings)}
@@ -184,6 +185,35 @@ def test_every_default_is_in_its_range():
             value = tables[section][s.key]
             parsed, problem = s.parse(list(value) if isinstance(value, tuple) else value)
             assert problem is None, (section, s.key, problem)
+
+
+def _dataclass_with(section: str, key: str, value):
+    """The dataclass behind ``section`` built with ``key = value``, the rest default."""
+    base = ControllerConfig()
+    if section.startswith("axes."):
+        return dataclasses.replace(base.axis(section.split(".")[1]), **{key: value})
+    if section == "controller":
+        return dataclasses.replace(base, **{key: value})
+    if section in MODEL:
+        return dataclasses.replace(getattr(base, section), **{key: value})
+    return {"bus": BusSettings, "drivers": DriverSettings, "weights": WeightsSettings}[section](**{key: value})
+
+
+@pytest.mark.parametrize("section,key", [(section, s.key) for section, settings in SECTIONS.items()
+                                         for s in settings if s.lo is not None])
+def test_the_dataclasses_refuse_what_the_schema_refuses(section, key):
+    """One declaration, two checks: a value just outside a field's range is refused by the TOML
+    schema and by the dataclass on creation, both naming the field and the same range."""
+    s = {x.key: x for x in SECTIONS[section]}[key]
+    bad = s.hi + 1 if s.kind == "int" else s.hi + max(abs(s.hi), 1.0)
+    value = (bad,) if s.kind == "floats" else bad
+    _, problems = validate_tables({"axes": {section[5:]: {key: value}}} if section.startswith("axes.") else
+                                  {section: {key: list(value) if s.kind == "floats" else value}})
+    assert any(p.startswith(f"{section}.{key} = ") and s._range() in p for p in problems), problems
+    prefix = "" if section == "controller" else f"{section}."
+    with pytest.raises(ValueError, match=rf"^{re.escape(prefix + key)} .*\[{re.escape(str(s.lo))}, "
+                                         rf"{re.escape(str(s.hi))}\]"):
+        _dataclass_with(section, key, value)
 
 
 # --------------------------------------------------------------------------- bad values
@@ -450,10 +480,11 @@ def test_a_hil_session_writes_a_controller_toml_the_daemon_reads(in_uml, tmp_pat
     node-silence timeout is longer), read back by the daemon as it starts it (bus on the command line)."""
     import hil.session.run as hilrun
     from controller.settings.daemon import session_config
+    from hil import profile
     from hil.experiments.learn import LearnConfig
 
-    monkeypatch.setattr(hilrun, "_in_uml", lambda: in_uml)
-    ctl = hilrun.session_controller_config(LearnConfig(trials=1, seed=0, range_noise_m=0.0, learning=False))
+    ctl = hilrun.session_controller_config(LearnConfig(trials=1, seed=0, range_noise_m=0.0, learning=False),
+                                           profile.UML if in_uml else profile.NATIVE)
     path = write_config(tmp_path / "controller.toml", session_config(ctl, "vcan0"), header="a session")
     assert load_config(path).controller == ctl and load_config(path).bus.channel == "vcan0"
     assert load_controller_config(path) == ctl  # what replay reads beside the log

@@ -1,4 +1,4 @@
-"""Height as context (issue 4): the range profile from the plant's beams through the sensor board,
+"""Height as context: the range profile from the plant's beams through the sensor board,
 the bus and the height estimator to the context learner, and a short run end to end."""
 
 from __future__ import annotations
@@ -320,7 +320,7 @@ def test_two_dimensional_weights_round_trip_and_are_checked(tmp_path):
 
 # -- end to end -------------------------------------------------------------------------------------
 def test_context_run_gates_different_contexts_for_different_heights():
-    from hil.experiments.methods import run_method
+    from hil.experiments.learn import run_method
 
     metrics = run_method("context", seed=0, trials=3, obstacle_height_m=(0.06, 0.12))
     by_height: dict[float, list[int | None]] = {}

@@ -13,7 +13,7 @@ import pytest
 
 from controller.stepping.weights import (SCHEMA_VERSION, WeightsError, checksum, load_weights, load_weights_or_fallback,
                                 prev_path, read_weights, save_weights, stale_temporaries)
-from hil.cli.main import main
+from hil.cli import main
 from hil.faults.killsave import kill_during_saves
 
 W = np.linspace(-0.1, 0.1, 28)

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from hil.analysis.animation import AnimationConfig, FrameGrabber, label_frames, side_by_side
-from hil.cli.main import main
+from hil.cli import main
 
 
 def gif_frames(path) -> list[np.ndarray]:

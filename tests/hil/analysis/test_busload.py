@@ -8,7 +8,7 @@ import can
 import pytest
 
 from hil.analysis.busload import bus_load_from_log
-from hil.cli.main import main
+from hil.cli import main
 from protocol import BusContract, frame_bits
 
 

@@ -230,7 +230,7 @@ def test_paper_figures_with_one_height_and_no_traces_warn_and_write_what_they_ca
 def test_figures_command_lists_what_it_wrote(tmp_path, capsys):
     import json
 
-    from hil.cli.main import main
+    from hil.cli import main
 
     folder = write_learn_folder(tmp_path / "run", 0.08, 0, traced=True)
     assert main(["figures", str(folder), "--out", str(tmp_path / "figs")]) == 0
@@ -243,7 +243,7 @@ def test_figures_command_lists_what_it_wrote(tmp_path, capsys):
 def test_learn_records_the_first_and_last_trial_for_the_figures(tmp_path):
     import json
 
-    from hil.cli.main import main
+    from hil.cli import main
 
     run = tmp_path / "run"
     assert main(["learn", "--trials", "3", "--seed", "2", "--out", str(run), "--quiet", "--no-figures"]) == 0

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from hil.cli.main import main
+from hil.cli import main
 
 WALK_KEYS = {"steps", "footfalls_m", "stride_m", "burst_s", "swing_clearance_min_m", "commands_outside_limits",
              "frames_tx", "frames_rx", "late_ticks", "sim_s", "wall_s"}

@@ -51,15 +51,16 @@ def test_the_watchdog_and_timeouts_leave_room_for_the_loop(unit):
     assert time_span_s(value(unit, "Service", "TimeoutStopSec")) >= 5.0
 
 
-def test_exec_start_is_the_daemon_with_a_config_and_parses_with_our_cli(unit):
-    from hil.cli.main import build_parser
+def test_exec_start_is_the_leg_daemon_with_a_config_and_parses_with_its_cli(unit):
+    from controller.cli import VERBS
+    from controller.cli.common import build_parser
 
     prefix, argv = command_line(value(unit, "Service", "ExecStart"))
     assert prefix == ""  # the daemon runs as User=, sandboxed
-    assert argv[:2] == ["/usr/local/bin/elegant-stepping", "controller"]
-    args = build_parser().parse_args(argv[1:])
-    assert args.command == "controller" and args.config == "/etc/elegant-stepping/leg.toml"
-    assert args.func.__name__ == "cmd_controller"
+    assert argv[:2] == ["/usr/local/bin/elegant-stepping-leg", "run"]
+    args = build_parser("elegant-stepping-leg", "", VERBS).parse_args(argv[1:])
+    assert args.command == "run" and args.config == "/etc/elegant-stepping/leg.toml"
+    assert args._verb.module == "controller.cli.run"
 
 
 def test_only_exec_start_pre_runs_privileged_and_it_brings_can0_up_at_1_mbit(unit):
@@ -117,8 +118,8 @@ def test_install_script_parses_and_prints_its_plan_without_running_anything(tmp_
                           timeout=30)
     assert done.returncode == 0, done.stderr
     plan = done.stdout
-    for step in ("python3 -m venv /opt/elegant-stepping/venv", "ln -sfn /opt/elegant-stepping/venv/bin/elegant-stepping "
-                 "/usr/local/bin/elegant-stepping", "/etc/systemd/system/elegant-stepping-controller.service",
+    for step in ("python3 -m venv /opt/elegant-stepping/venv", "ln -sfn /opt/elegant-stepping/venv/bin/elegant-stepping-leg "
+                 "/usr/local/bin/elegant-stepping-leg", "/etc/systemd/system/elegant-stepping-controller.service",
                  "/etc/elegant-stepping/leg.toml", "systemctl daemon-reload",
                  "systemctl enable elegant-stepping-controller.service"):
         assert step in plan, step
@@ -141,7 +142,7 @@ def test_install_script_stages_the_files_under_a_root_and_keeps_an_existing_conf
     assert (root / "etc/elegant-stepping/leg.toml").read_text() == "# a leg\n"
     assert (root / "usr/local/share/doc/elegant-stepping/deploy.md").exists()
     assert (root / "usr/local/share/elegant-stepping/sim.toml").read_text() == (REPO / "configs/sim.toml").read_text()
-    assert (root / "usr/local/bin/elegant-stepping").is_symlink()
+    assert (root / "usr/local/bin/elegant-stepping-leg").is_symlink()
     assert "(skipped under --root) systemctl daemon-reload" in done.stdout
     (root / "etc/elegant-stepping/leg.toml").write_text("# calibrated\n")
     config.write_text("# a newer example\n")
@@ -154,7 +155,7 @@ def test_the_dry_run_swaps_only_the_config_and_the_bus(tmp_path):
     dep = Deployment.from_unit(UNIT, "/x/sim.toml")
     _, argv = command_line(value(read_unit(UNIT), "Service", "ExecStart"))
     assert dep.exec_start == argv
-    n = len(dep.argv) - len(argv)  # the program may become this environment's (one word, or python -m hil.cli.main)
+    n = len(dep.argv) - len(argv)  # the program may become this environment's (one word, or python -m controller.cli)
     assert dep.argv[n + 1:] == [w if w != "/etc/elegant-stepping/leg.toml" else "/x/sim.toml" for w in argv[1:]]
     assert dep.env == environment(read_unit(UNIT))  # the unit's Environment=, as it is
     assert dep.watchdog_s == 1.0 and dep.start_timeout_s == 45.0 and dep.stop_timeout_s == 10.0
@@ -219,7 +220,7 @@ def test_the_final_record_is_read_from_the_daemons_output():
 def test_the_deploy_doc_covers_what_the_issue_asks():
     doc = (REPO / "docs" / "deploy.md").read_text()
     for needle in ("120", "1 Mbit/s", "node_id", "heartbeat_msg_rate_ms", "encoder_msg_rate_ms", "watchdog_timeout",
-                   "POSITION_CONTROL", "PASSTHROUGH", "elegant-stepping bringup", "WatchdogSec", "install.sh",
+                   "POSITION_CONTROL", "PASSTHROUGH", "elegant-stepping-leg bringup", "WatchdogSec", "install.sh",
                    "elegant-stepping dryrun", "zero_offset_rev", "direction"):
         assert needle in doc, needle
 
@@ -238,7 +239,7 @@ def test_systemd_analyze_verify_accepts_the_unit(tmp_path):
 def test_the_dry_run_uses_the_sim_config_as_is_natively_and_a_marked_copy_inside_uml(tmp_path, monkeypatch):
     from controller.settings.file import load_config
     from hil.dryrun.run import SIM_CONFIG, platform_config
-    from hil.session.run import UML_SILENCE_PERIODS
+    from hil.profile import UML
 
     monkeypatch.delenv("ELEGANT_STEPPING_IN_UML", raising=False)
     assert platform_config(SIM_CONFIG, tmp_path, "vcan0") == (SIM_CONFIG, [])
@@ -248,5 +249,5 @@ def test_the_dry_run_uses_the_sim_config_as_is_natively_and_a_marked_copy_inside
     copy, swaps = platform_config(SIM_CONFIG, tmp_path, "vcan0")
     assert copy.parent == tmp_path and len(swaps) == 1 and "silence_periods 3.5 -> 10" in swaps[0]
     original, changed = load_config(SIM_CONFIG), load_config(copy)
-    assert changed.controller.silence_periods == UML_SILENCE_PERIODS
+    assert changed.controller.silence_periods == UML.min_silence_periods
     assert changed.bus == original.bus and changed.controller.axes == original.controller.axes

@@ -106,7 +106,7 @@ def test_q_learning_rejects_bad_config_and_reflex():
 
 
 def test_oracle_steps_over_through_the_whole_stack():
-    from hil.experiments.methods import run_method
+    from hil.experiments.learn import run_method
 
     m = run_method("oracle", seed=4, trials=3, obstacle_height_m=0.08)
     last = [t["footfalls_m"][-1] for t in m["trials"]]

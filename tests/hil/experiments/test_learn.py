@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from hil.cli.main import main
+from hil.cli import main
 from hil.experiments.learn import LearnConfig, run_learning
 
 TRIAL_KEYS = {"index", "success", "reflexes", "footfalls_m", "burst_s", "gated_decisions"}

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from hil.analysis import report
-from hil.cli.main import main
+from hil.cli import main
 from hil.experiments.sweep import Cell, SweepConfig, parse_seeds, run_sweep, summary_row
 
 T, F = True, False
@@ -23,10 +23,10 @@ def test_row_of_a_150_trial_run():
     # holds 9 successes, so 11 trials ran before it
     success = [F] * 12 + [T] * 138
     success[119] = success[129] = F
-    row = summary_row(Cell("learner", 0.08, 3, 150), success)
-    assert row == {"method": "learner", "obstacle_height_m": 0.08, "seed": 3, "trials": 150,
+    row = summary_row(Cell("paper", 0.08, 3, 150), success)
+    assert row == {"method": "paper", "obstacle_height_m": 0.08, "seed": 3, "trials": 150,
                    "trials_to_criterion": 11, "mistakes_after_100": 2, "success_last_50": 48 / 50,
-                   "success_rate": 136 / 150, "cell": "learner_h80mm_s3"}
+                   "success_rate": 136 / 150, "cell": "paper_h80mm_s3"}
 
 
 def test_criterion_needs_9_of_10_in_a_window():
@@ -63,7 +63,7 @@ def test_seeds_lists_and_ranges():
 
 @pytest.mark.parametrize("kwargs,field", [
     ({"seeds": (0, 0)}, "seeds"), ({"seeds": (-1,)}, "seeds"), ({"obstacle_heights_m": (0.02,)}, "obstacle_heights_m"),
-    ({"methods": ("learner", "magic")}, "methods"), ({"trials": 0}, "trials"), ({"workers": 0}, "workers"),
+    ({"methods": ("paper", "magic")}, "methods"), ({"trials": 0}, "trials"), ({"workers": 0}, "workers"),
     ({"methods": ()}, "methods"),
 ])
 def test_bad_config_names_the_field(tmp_path, kwargs, field):
@@ -73,7 +73,7 @@ def test_bad_config_names_the_field(tmp_path, kwargs, field):
 
 @pytest.mark.parametrize("argv,field", [
     (["--seeds", "2-1"], "seeds"), (["--obstacle-heights-m", "0.06,x"], "obstacle_heights_m"),
-    (["--methods", "learner,magic"], "methods"), (["--trials", "0"], "trials"),
+    (["--methods", "paper,magic"], "methods"), (["--trials", "0"], "trials"),
 ])
 def test_bad_sweep_arguments_get_a_clear_error(tmp_path, capsys, argv, field):
     assert main(["sweep", "--out", str(tmp_path / "s"), "--quiet", *argv]) == 2
@@ -82,14 +82,14 @@ def test_bad_sweep_arguments_get_a_clear_error(tmp_path, capsys, argv, field):
 
 
 def test_a_cell_checks_the_config_of_its_metrics():
-    cell = Cell("learner", 0.06, 2, 2)
-    good = {"config": {"method": "learner", "seed": 2, "trials": 2, "obstacle_height_m": 0.06,
+    cell = Cell("paper", 0.06, 2, 2)
+    good = {"config": {"method": "paper", "seed": 2, "trials": 2, "obstacle_height_m": 0.06,
                        "obstacle_heights_m": []}, "trials": [{"success": True}, {"success": False}]}
     assert cell.mismatch(good) is None
     assert "trials" in cell.mismatch({**good, "config": {**good["config"], "trials": 3}})
     assert "obstacle_height_m" in cell.mismatch({**good, "config": {**good["config"], "obstacle_height_m": 0.1}})
     assert cell.mismatch({"config": {}}) is not None and cell.mismatch([]) is not None
-    mixed = Cell("learner", (0.06, 0.1), 2, 2)
+    mixed = Cell("paper", (0.06, 0.1), 2, 2)
     assert "obstacle_heights_m" in mixed.mismatch(good)
 
 
@@ -119,25 +119,25 @@ def test_headline_table_sentences_and_figures_come_from_the_rows(tmp_path):
     none = {0: ([T, F, F] * n)[:n], 1: ([F, T, F] * n)[:n]}
     oracle = {0: [T] * n, 1: [T] * (n - 1) + [F]}
     outcomes = {}
-    for method, by_seed in (("learner", learner), ("none", none), ("oracle", oracle), ("rl", rl)):
+    for method, by_seed in (("paper", learner), ("none", none), ("oracle", oracle), ("rl", rl)):
         for seed, s in by_seed.items():
             outcomes[(method, 0.06, seed)] = s
             outcomes[(method, 0.1, seed)] = [not x for x in s] if method == "none" else s
     out = tmp_path / "sweep"
-    rows = fake_sweep(out, outcomes, ("learner", "none", "oracle", "rl"), (0.1, 0.06), (0, 1))
+    rows = fake_sweep(out, outcomes, ("paper", "none", "oracle", "rl"), (0.1, 0.06), (0, 1))
     assert [(r["method"], r["obstacle_height_m"], r["seed"]) for r in rows][:4] == [
-        ("learner", 0.06, 0), ("learner", 0.06, 1), ("learner", 0.1, 0), ("learner", 0.1, 1)]
+        ("paper", 0.06, 0), ("paper", 0.06, 1), ("paper", 0.1, 0), ("paper", 0.1, 1)]
 
     table = report.headline_table(rows)
     assert [(e["obstacle_height_m"], e["method"]) for e in table] == [
-        (h, m) for h in (0.06, 0.1) for m in ("learner", "none", "oracle", "rl")]
+        (h, m) for h in (0.06, 0.1) for m in ("paper", "none", "oracle", "rl")]
     e = {(e["obstacle_height_m"], e["method"]): e for e in table}
     # a window may start on the last failure: 9 of 10 is enough
-    assert e[0.06, "learner"]["trials_to_criterion_mean"] == 6.0
-    assert (e[0.06, "learner"]["trials_to_criterion_min"], e[0.06, "learner"]["trials_to_criterion_max"]) == (4, 8)
-    assert e[0.06, "learner"]["mistakes_after_100_mean"] == 0.5
-    assert e[0.06, "learner"]["seeds_without_mistakes_after_100"] == 1
-    assert e[0.06, "learner"]["success_last_50_mean"] == pytest.approx((1.0 + 49 / 50) / 2)
+    assert e[0.06, "paper"]["trials_to_criterion_mean"] == 6.0
+    assert (e[0.06, "paper"]["trials_to_criterion_min"], e[0.06, "paper"]["trials_to_criterion_max"]) == (4, 8)
+    assert e[0.06, "paper"]["mistakes_after_100_mean"] == 0.5
+    assert e[0.06, "paper"]["seeds_without_mistakes_after_100"] == 1
+    assert e[0.06, "paper"]["success_last_50_mean"] == pytest.approx((1.0 + 49 / 50) / 2)
     assert e[0.06, "rl"]["never_reached"] == 1 and e[0.06, "rl"]["trials_to_criterion_mean"] == 29
     assert e[0.06, "none"]["trials_to_criterion_mean"] is None and e[0.06, "none"]["never_reached"] == 2
     assert e[0.06, "oracle"]["success_rate_mean"] == pytest.approx((1.0 + (n - 1) / n) / 2)
@@ -146,14 +146,14 @@ def test_headline_table_sentences_and_figures_come_from_the_rows(tmp_path):
     assert result["table"] == table and result["missing"] == []
     md = (out / "report.md").read_text()
     assert "## Obstacle 0.06 m" in md and "## Obstacle 0.1 m" in md
-    assert "| learner | 2 | 6.0 (4–8) | 0 | 0.50 | 1 | 99% |" in md
+    assert "| paper | 2 | 6.0 (4–8) | 0 | 0.50 | 1 | 99% |" in md
     assert "| rl | 2 | 29.0 (29–29) | 1 |" in md
     assert "The learner (Elegant Stepping) reached the criterion after 6.0 trials on average (range 4–8" in md
     assert "made 0.50 mistakes after trial 100 on average (1 of 2 seeds made none)" in md
     assert "1 of 2 seeds never reached it" in md
     assert "Without adaptation (none), the leg never reached the criterion on any of its 2 seeds" in md
     assert f"The oracle succeeded in {(1 + (n - 1) / n) / 2:.0%} of all trials" in md
-    assert "--seeds 0,1 --obstacle-heights-m 0.1,0.06 --methods learner,none,oracle,rl --trials 120" in md
+    assert "--seeds 0,1 --obstacle-heights-m 0.1,0.06 --methods paper,none,oracle,rl --trials 120" in md
     for name in ("success_curves_60mm", "success_curves_100mm", "criterion_bars"):
         assert f"](figures/{name}.png)" in md
         for ext in ("png", "svg"):
@@ -163,11 +163,11 @@ def test_headline_table_sentences_and_figures_come_from_the_rows(tmp_path):
     oracle_curve = result["curves"]["0.06 m"]["oracle"]
     assert oracle_curve["seeds"] == 2 and oracle_curve["mean"][:3] == [1.0, 1.0, 1.0]
     assert oracle_curve["mean"][-1] == pytest.approx(0.95)  # seed 1's last window has one failure in 10
-    assert oracle_curve["low"][-1] < 0.95 < oracle_curve["high"][-1]
-    learner_curve = result["curves"]["0.06 m"]["learner"]
+    assert oracle_curve["ci95_low"][-1] < 0.95 < oracle_curve["ci95_high"][-1]
+    learner_curve = result["curves"]["0.06 m"]["paper"]
     assert learner_curve["mean"][0] == 0.0 and learner_curve["trial"] == list(range(1, n + 1))
     bars = result["bars"]
-    assert bars["methods"] == ["learner", "none", "oracle", "rl"] and bars["heights"] == ["0.06 m", "0.1 m"]
+    assert bars["methods"] == ["paper", "none", "oracle", "rl"] and bars["heights"] == ["0.06 m", "0.1 m"]
     assert bars["trials_to_criterion_mean"][0] == [6.0, None, 0.0, 29.0]
     assert bars["success_last_50_mean"][1][1] == e[0.1, "none"]["success_last_50_mean"]
 
@@ -187,24 +187,24 @@ def test_report_only_on_a_folder_that_is_not_a_sweep(tmp_path, capsys):
 
 def test_a_second_run_runs_nothing_and_a_corrupt_or_mismatched_cell_runs_again(tmp_path, caplog, capsys):
     out = tmp_path / "sweep"
-    argv = ["sweep", "--out", str(out), "--seeds", "0", "--obstacle-heights-m", "0.07", "--methods", "learner,none",
+    argv = ["sweep", "--out", str(out), "--seeds", "0", "--obstacle-heights-m", "0.07", "--methods", "paper,none",
             "--trials", "2", "--workers", "2", "--quiet"]
     assert main(argv) == 0
     summary = (out / "summary.json").read_text()
     rows = json.loads(summary)
-    assert [(r["method"], r["seed"], r["trials"]) for r in rows] == [("learner", 0, 2), ("none", 0, 2)]
+    assert [(r["method"], r["seed"], r["trials"]) for r in rows] == [("paper", 0, 2), ("none", 0, 2)]
     timing = json.loads((out / "timing.json").read_text())
     assert [c["status"] for c in timing["cells"]] == ["ran", "ran"] and timing["executor"] == "pool"
     assert "wall_s" not in summary
     assert "2 run, 0 resumed" in capsys.readouterr().err
 
-    config = SweepConfig(out_dir=out, seeds=(0,), obstacle_heights_m=(0.07,), methods=("learner", "none"), trials=2,
+    config = SweepConfig(out_dir=out, seeds=(0,), obstacle_heights_m=(0.07,), methods=("paper", "none"), trials=2,
                          workers=2)
     again = run_sweep(config, progress=False)
     assert (again["ran"], again["resumed"], again["failed"]) == (0, 2, [])
     assert (out / "summary.json").read_text() == summary
 
-    (out / "cells" / "learner_h70mm_s0" / "metrics.json").write_text('{"config": {"method": "lear')
+    (out / "cells" / "paper_h70mm_s0" / "metrics.json").write_text('{"config": {"method": "lear')
     metrics = json.loads((out / "cells" / "none_h70mm_s0" / "metrics.json").read_text())
     metrics["config"]["trials"] = 3
     (out / "cells" / "none_h70mm_s0" / "metrics.json").write_text(json.dumps(metrics))
@@ -219,20 +219,20 @@ def test_a_second_run_runs_nothing_and_a_corrupt_or_mismatched_cell_runs_again(t
 def test_a_failing_cell_is_named_and_the_finished_ones_are_kept(tmp_path, capsys):
     out = tmp_path / "sweep"
     (out / "cells").mkdir(parents=True)
-    (out / "cells" / "learner_h80mm_s1").write_text("a file where the cell's folder should go")
-    argv = ["sweep", "--out", str(out), "--seeds", "0-1", "--obstacle-heights-m", "0.08", "--methods", "learner",
+    (out / "cells" / "paper_h80mm_s1").write_text("a file where the cell's folder should go")
+    argv = ["sweep", "--out", str(out), "--seeds", "0-1", "--obstacle-heights-m", "0.08", "--methods", "paper",
             "--trials", "1", "--workers", "2", "--quiet"]
     assert main(argv) == 1
     err = capsys.readouterr().err
-    assert "1 cells failed: learner_h80mm_s1" in err
-    assert [r["cell"] for r in json.loads((out / "summary.json").read_text())] == ["learner_h80mm_s0"]
+    assert "1 cells failed: paper_h80mm_s1" in err
+    assert [r["cell"] for r in json.loads((out / "summary.json").read_text())] == ["paper_h80mm_s0"]
     timing = json.loads((out / "timing.json").read_text())
-    assert timing["failed"] == ["learner_h80mm_s1"]
+    assert timing["failed"] == ["paper_h80mm_s1"]
     failed = timing["cells"][1]
     assert failed["status"] == "failed" and "Error" in failed["error"] and "Traceback" in failed["traceback"]
-    assert "Incomplete: 1 cells have no result** (learner_h80mm_s1)" in (out / "report.md").read_text()
+    assert "Incomplete: 1 cells have no result** (paper_h80mm_s1)" in (out / "report.md").read_text()
 
-    (out / "cells" / "learner_h80mm_s1").unlink()
+    (out / "cells" / "paper_h80mm_s1").unlink()
     assert main(argv) == 0
     assert json.loads((out / "timing.json").read_text())["resumed"] == 1
     assert len(json.loads((out / "summary.json").read_text())) == 2
@@ -242,9 +242,9 @@ def test_a_failing_cell_is_named_and_the_finished_ones_are_kept(tmp_path, capsys
 def test_mixed_heights_are_one_scenario(tmp_path):
     out = tmp_path / "sweep"
     assert main(["sweep", "--out", str(out), "--seeds", "4", "--obstacle-heights-m", "0.06,0.10", "--mixed-heights",
-                 "--methods", "learner", "--trials", "4", "--workers", "1", "--quiet"]) == 0
+                 "--methods", "paper", "--trials", "4", "--workers", "1", "--quiet"]) == 0
     [row] = json.loads((out / "summary.json").read_text())
-    assert row["obstacle_height_m"] == [0.06, 0.1] and row["cell"] == "learner_h60mm+100mm_s4"
+    assert row["obstacle_height_m"] == [0.06, 0.1] and row["cell"] == "paper_h60mm+100mm_s4"
     metrics = json.loads((out / "cells" / row["cell"] / "metrics.json").read_text())
     assert metrics["config"]["obstacle_heights_m"] == [0.06, 0.1]
     assert {t["obstacle_height_m"] for t in metrics["trials"]} <= {0.06, 0.1}
@@ -267,12 +267,38 @@ def test_cells_run_on_a_dask_scheduler_given_by_address(tmp_path):
 @pytest.mark.slow
 def test_pool_and_dask_local_give_the_same_summary(tmp_path):
     """The issue's done criterion: 3 seeds x 2 heights x 4 methods, on the pool and on --dask local."""
-    common = ["--seeds", "0-2", "--obstacle-heights-m", "0.06,0.10", "--methods", "learner,none,oracle,rl",
+    common = ["--seeds", "0-2", "--obstacle-heights-m", "0.06,0.10", "--methods", "paper,none,oracle,rl",
               "--trials", "3", "--workers", "2", "--quiet"]
     assert main(["sweep", "--out", str(tmp_path / "pool"), *common]) == 0
     assert main(["sweep", "--out", str(tmp_path / "dask"), "--dask", "local", *common]) == 0
     pool = (tmp_path / "pool" / "summary.json").read_text()
     assert pool == (tmp_path / "dask" / "summary.json").read_text()
     rows = json.loads(pool)
-    assert len(rows) == 24 and [r["method"] for r in rows[::6]] == ["learner", "none", "oracle", "rl"]
+    assert len(rows) == 24 and [r["method"] for r in rows[::6]] == ["paper", "none", "oracle", "rl"]
     assert json.loads((tmp_path / "dask" / "timing.json").read_text())["executor"] == "dask local"
+
+
+def test_an_old_sweep_folder_naming_the_learner_learner_still_reports(tmp_path):
+    """Older sweeps called the paper's learner ``learner``: their folders are read with that alias."""
+    from hil.experiments.sweep import cells_from_json
+
+    out = tmp_path / "old"
+    config = {"methods": ["learner", "none"], "obstacle_heights_m": [0.08], "mixed_heights": False, "seeds": [0],
+              "trials": 12}
+    rows = []
+    for cell in cells_from_json(config):
+        success = [F] * 2 + [T] * 10
+        cell.folder(out).mkdir(parents=True)
+        (cell.folder(out) / "metrics.json").write_text(json.dumps({"config": {"method": cell.method},
+                                                                   "trials": [{"success": s} for s in success]}))
+        rows.append(summary_row(cell, success))
+    (out / "config.json").write_text(json.dumps(config))
+    (out / "summary.json").write_text(json.dumps(rows))
+    assert rows[0]["cell"] == "learner_h80mm_s0" and rows[0]["success_last_50"] == 10 / 12
+    result = report.write_report(out)
+    md = result["report"].read_text()
+    assert not result["missing"]
+    assert "The learner (Elegant Stepping) reached the criterion" in md
+    assert "--methods paper,none" in md  # the reproduce line names today's method
+    with pytest.raises(ValueError, match="unknown method 'learner'"):
+        SweepConfig(out_dir=out, methods=("learner",))  # new sweeps: registry names only

@@ -220,7 +220,7 @@ def test_matrix_rows_have_the_issue_fields_and_are_deterministic(tmp_path):
 
 
 def test_the_faults_command_writes_rows_and_a_table(tmp_path):
-    from hil.cli.main import main
+    from hil.cli import main
 
     out, js = tmp_path / "m", tmp_path / "faults.json"
     assert main(["faults", "--only", "kill,kill_during_save", "--kills", "20", "--out", str(out), "--json", str(js),

@@ -1,5 +1,4 @@
-"""The HIL processes' configuration: legacy JSON controller configs (replay of old sessions),
-bus settings python-can's way."""
+"""Legacy JSON controller configurations (replay of sessions recorded before TOML)."""
 
 from __future__ import annotations
 
@@ -8,7 +7,7 @@ import json
 import pytest
 
 from controller.config import ControllerConfig
-from controller.settings.daemon import bus_kwargs, controller_config_from_dict, controller_config_to_dict, load_controller_config
+from hil.analysis.legacy_config import controller_config_from_dict, controller_config_to_dict, load_controller_config
 
 
 def test_a_written_config_reads_back_equal(tmp_path):
@@ -29,8 +28,3 @@ def test_unknown_keys_and_bad_values_are_clear_errors():
         controller_config_from_dict({"learner": {"learnin": False}})
     with pytest.raises(ValueError, match="rate_hz"):
         controller_config_from_dict({"rate_hz": 1.0})
-
-
-def test_bus_settings_pass_only_what_was_given():
-    assert bus_kwargs("virtual", "x", None) == {"interface": "virtual", "channel": "x"}
-    assert bus_kwargs(None, None, None) == {}  # python-can's config file / environment decide

@@ -1,0 +1,47 @@
+"""``bench``: performance figures as JSON, ratios measured side by side."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from controller.cli.common import positive, write_json
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seconds", type=positive(float), default=10.0, help="simulated seconds per figure")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--learn-trials", type=int, default=10, help="learning trials timed (default 10)")
+    p.add_argument("--json", default="-", help="where to write the figures (default: stdout)")
+    p.add_argument("--hil", action="store_true",
+                   help="also the HIL figures on a real vcan0 (User-Mode Linux where needed), beside the floor")
+    p.add_argument("--hil-seconds", type=positive(float), default=10.0,
+                   help="seconds of walking (and of each floor run) for --hil (default 10)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from hil.bench.run import run_bench
+
+    result = run_bench(seconds=args.seconds, seed=args.seed, learn_trials=args.learn_trials,
+                       hil_seconds=args.hil_seconds if args.hil else None)
+    write_json(args.json, result)
+    if args.hil:
+        h = result["hil"]
+        if not h.get("available"):
+            print(f"elegant-stepping bench --hil: {h.get('error')} (install: {h.get('install')})", file=sys.stderr)
+            return 3
+        f = h["figures"]
+
+        def pair(key: str) -> str:
+            x = f[key]
+            r = "n/a" if x["ratio"] is None else f"{x['ratio']:.1f}x"
+            fmt = lambda v: "n/a" if v is None else f"{v:.0f}"  # noqa: E731
+            return f"{fmt(x['hil'])} vs {fmt(x['floor'])} ({r})"
+
+        print(f"bench --hil ({h['where']}): jitter p99 {pair('period_jitter_p99_us')} us, late/10k "
+              f"{pair('late_ticks_per_10k')}, command->feedback median {pair('command_to_feedback_median_us')} us, "
+              f"p99 {pair('command_to_feedback_p99_us')} us (HIL vs floor)", file=sys.stderr)
+        if h.get("error"):
+            print(f"elegant-stepping bench --hil: {h['error']}", file=sys.stderr)
+            return 1
+    return 0

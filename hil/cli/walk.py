@@ -1,0 +1,31 @@
+"""``walk``: walk on flat ground through the whole stack in lockstep."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from controller.cli.common import positive, write_json
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seconds", type=positive(float), default=20.0, help="simulated seconds (default 20)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
+    p.add_argument("--burst-s", type=positive(float), default=None, help="CPG burst length [s] (default 0.30)")
+    p.add_argument("--json", default="-", help="where to write the metrics (default: stdout)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from hil.experiments.walk import run_walk
+
+    metrics = run_walk(args.seconds, seed=args.seed, burst_s=args.burst_s, progress=not args.quiet)
+    write_json(args.json, metrics)
+    stride = metrics["mean_stride_m"]
+    print(
+        f"walked {metrics['sim_s']:.1f} s in {metrics['wall_s']:.2f} s wall: {metrics['steps']} steps, "
+        f"mean stride {stride if stride is None else round(stride, 3)} m, "
+        f"clearance {metrics['swing_clearance_min_m']}, phase {metrics['phase']}",
+        file=sys.stderr,
+    )
+    return 0 if metrics["phase"] == "walk" else 1

@@ -1,0 +1,62 @@
+"""The method registry: one place that names every method, cheap to import, and what each builds."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from hil.experiments import methods
+from hil.experiments.learn import LearnConfig, learn_config
+
+
+def test_the_registry_names_every_method_once():
+    assert methods.METHODS == ("paper", "context", "none", "oracle", "rl")
+    assert set(methods.DEFAULT_SWEEP_METHODS) <= set(methods.METHODS)
+    assert methods.DEFAULT_METHOD == "paper" == LearnConfig().method
+    for name, m in methods.REGISTRY.items():
+        assert m.name == name and m.label and m.sentence in ("criterion", "success", None)
+    assert [n for n, m in methods.REGISTRY.items() if not m.learns] == ["none"]
+
+
+def test_unknown_names_are_refused_and_the_old_alias_is_only_for_reading():
+    with pytest.raises(ValueError, match="unknown method 'magic'; choose from paper, context"):
+        methods.get("magic")
+    with pytest.raises(ValueError, match="learner"):
+        methods.get("learner")  # new runs take registry names only
+    with pytest.raises(ValueError, match="unknown method"):
+        LearnConfig(method="learner")
+    assert methods.resolve("learner") is methods.REGISTRY["paper"]
+    assert methods.resolve("rl") is methods.REGISTRY["rl"]
+
+
+def test_learn_config_of_each_method():
+    c = learn_config("none", seed=2, trials=3, obstacle_height_m=0.06)
+    assert (c.method, c.learning, c.obstacle_height_m, c.obstacle_heights_m) == ("none", False, 0.06, ())
+    assert LearnConfig(method="none").learning is False  # learn --method none: no adaptation
+    assert LearnConfig(method="rl").learning is True and LearnConfig(method="paper", learning=False).learning is False
+    c = learn_config("paper", seed=2, trials=3, obstacle_height_m=(0.06, 0.1))
+    assert (c.method, c.learning, c.obstacle_height_m, c.obstacle_heights_m) == ("paper", True, 0.06, (0.06, 0.1))
+
+
+def test_the_builders_give_the_premotor_of_each_method():
+    from controller.stepping.context import ContextPremotor
+    from controller.stepping.rl import QLearningPremotor
+    from hil.experiments.oracle import OraclePremotor
+
+    ctl = LearnConfig().controller
+    built = {n: methods.get(n).build(ctl, methods.get(n).learns, 0, lambda: None) for n in methods.METHODS}
+    assert built["paper"] is None and built["none"] is None  # the controller's own premotor
+    assert isinstance(built["oracle"], OraclePremotor)
+    assert isinstance(built["rl"], QLearningPremotor)
+    assert isinstance(built["context"], ContextPremotor)
+
+
+def test_parsing_method_names_imports_no_simulation():
+    code = ("import sys; from hil.experiments.sweep import SweepConfig, parse_methods; "
+            "SweepConfig(out_dir='x', methods=parse_methods('paper,none,oracle,rl,context')); "
+            "heavy = [m for m in ('pybullet', 'firmware_sim', 'hil.experiments.learn') if m in sys.modules]; "
+            "print(heavy); sys.exit(1 if heavy else 0)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr
