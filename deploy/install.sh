@@ -67,7 +67,7 @@ main() {
   # 2. the package, in its own virtual environment
   host python3 -m venv "$venv"
   host "$venv/bin/python" -m pip install --upgrade pip
-  host "$venv/bin/python" -m pip install "$repo"
+  host "$venv/bin/python" -m pip install -c "$repo/constraints.txt" "$repo"
   run install -d -m 0755 "$root/usr/local/bin"
   run ln -sfn "$venv/bin/elegant-stepping-leg" "$root/usr/local/bin/elegant-stepping-leg"
   # 3. the unit and its documentation

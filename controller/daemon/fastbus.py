@@ -2,7 +2,7 @@
 
 python-can's ``SocketcanBus.recv(timeout=0)`` costs a ``select`` and a ``recvmsg`` per frame, and
 ``send`` a clock read, a ``select`` and a ``send``. Inside User-Mode Linux every system call is
-a ptrace round trip (about 20 us, measured), so these add up to a good part of a CPU at our
+a ptrace round trip (figures: docs/hil.md), so these add up to a good part of a CPU at our
 frame rates. :class:`LeanSocketcan` keeps the bus python-can opened (its configuration,
 filters, timestamps, frame layout) and only trims the calls: the socket is made non-blocking,
 ``recv(0)`` is one ``recvmsg`` (``EAGAIN``: no frame), ``send`` one ``send``. Any other bus, or

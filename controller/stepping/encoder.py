@@ -17,7 +17,7 @@ from controller.settings.schema import check_settings, setting
 @dataclass(frozen=True)
 class RangeEncoderConfig:
     """The cells. Narrower cells learn the same map but visit each cell less often, so cells met
-    late may never have been trained (see the README's learning section).
+    late may never have been trained (see docs/results.md).
 
     ``max_range_m`` defaults to 28 cells, about three strides of the natural gait beyond the
     take-off window. The paper's robot "makes at most three discrete decisions prior to going over

@@ -24,6 +24,7 @@ VERBS: tuple[Verb, ...] = (
     Verb("learn", "hil.cli.learn", "learning trials: approach an obstacle and step over it, again and again", BOTH),
     Verb("analyze", "hil.cli.analyze", "acceptance figures from one or more learn output folders"),
     Verb("bench", "hil.cli.bench", "performance figures as JSON, ratios measured side by side", BOTH),
+    Verb("compare", "hil.cli.compare", "are two runs' records the same, field for field (wall-clock figures aside)?"),
     Verb("figures", "hil.cli.figures", "the paper's figures (PNG and SVG) from learn output folders", RESEARCH),
     Verb("animate", "hil.cli.animate", "GIFs of the leg before and after learning (PyBullet renderer)", BOTH),
     Verb("sweep", "hil.cli.sweep", "learning runs over seeds x obstacle heights x methods, with a report", BOTH),
