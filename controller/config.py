@@ -39,6 +39,11 @@ class ControllerConfig:
     board's 10 Hz. Any accepted frame is a sign of life (``silence_periods``), so random frame loss
     does not look like silence; a node whose heartbeat alone stops (``stale_heartbeat_periods``) is
     lost too, its reported state no longer known.
+
+    ``auto_arm``: the loop requests the arm itself in the tick it first finds every node heard
+    (INACTIVE), as the lockstep experiments and the HIL sessions on vcan need; otherwise only an
+    operator's arm command arms the axes (:meth:`controller.loop.ControlLoop.request_arm`). The
+    settings file refuses it on a real bus (:mod:`controller.settings.file`).
     """
 
     rate_hz: float = setting(500.0, "Hz", 10.0, 5000.0, "control loop rate")
@@ -61,6 +66,7 @@ class ControllerConfig:
     bringup_timeout_s: float = setting(5.0, "s", 0.01, 600.0, "give up bringing the axes up after this long")
     late_factor: float = setting(1.5, "control periods", 1.0, 100.0, "a tick longer than this is late")
     max_dt_factor: float = setting(2.0, "control periods", 1.0, 100.0, "the CPG integrates at most this much per tick")
+    auto_arm: bool = setting(False, doc="arm by itself once every node is heard; only on a virtual or vcan bus")
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -5,17 +5,29 @@ simulated time, the daemon with the monotonic clock. Each tick integrates the CP
 measured dt (capped at ``max_dt_factor`` periods), so a late tick never double-steps the CPG;
 a tick whose measured period exceeds ``late_factor`` periods is counted in ``late_ticks``.
 
-A tick: drain the bus, update the supervisor, then by phase: hold (arming), ramp, or walk
-(CPG -> premotor burst length -> foot trajectory -> inverse kinematics -> muscle low-pass ->
-Set_Input_Pos for each axis). While walking, every tick also runs the range filter, the
-height estimator and the contact reflexes; every step onset gates the encoded range (with the
-height context) into the premotor's memory and sets the lift reflex's amplitude for the coming
-swing.
+A tick: drain the bus (a frame from another master, one only a master sends to our nodes, is a
+latched FAULT in that very tick), update the supervisor, then by phase: IDLE to an axis not idle
+(inactive; with ``auto_arm``, the arm request in the tick INACTIVE is reached from WAIT_NODES),
+hold (arming), ramp, or walk (CPG -> premotor burst length -> foot trajectory -> inverse
+kinematics -> muscle low-pass -> Set_Input_Pos for each axis), or IDLE (fault). While
+walking, every tick also runs the range filter, the height estimator and the contact reflexes;
+every step onset gates the encoded range (with the height context) into the premotor's memory
+and sets the lift reflex's amplitude for the coming swing.
+
+**The operator's commands** (:meth:`ControlLoop.request_arm`, :meth:`~ControlLoop.request_disarm`,
+:meth:`~ControlLoop.request_estop`, :meth:`~ControlLoop.request_clear_faults`) are called
+between ticks, from the loop's own thread. Each returns None when accepted or a one-line reason
+when refused, and logs what it did. Arming never sends Clear_Errors: an axis that reports an
+error (a latched Estop, a watchdog trip, ...) refuses the arm, named with its error, until the
+faults are cleared on purpose (:meth:`~ControlLoop.request_clear_faults`, the only sender of
+Clear_Errors). :meth:`ControlLoop.status` is the loop's state as JSON-serialisable values.
 """
 
 from __future__ import annotations
 
+import logging
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 
 import can
@@ -34,8 +46,13 @@ from controller.stepping.premotor import Premotor
 from controller.stepping.range_filter import RangeFilter
 from controller.stepping.reflexes import ContactReflexes, Reflex, lift_amplitude
 from controller.io.sensors import SensorLink
-from controller.supervisor import Phase, Supervisor
+from controller.supervisor import ACTIVE_PHASES, Phase, Supervisor, error_names, error_text
 from protocol import AxisState, BusContract, ControlMode, InputMode
+
+log = logging.getLogger(__name__)
+
+IDLE_RESEND_S = 0.1
+"""IDLE is sent again this often [s] to an axis that should be idle (FAULT, INACTIVE) and is not."""
 
 
 @dataclass
@@ -108,10 +125,20 @@ class ControlLoop:
         self._ramp_to = dict(zip(("hip", "knee"), inverse(config.geometry, *self.trajectory.start_pose())))
         self._last_idle_s = -math.inf
         self._was_flexing = False
+        self.arm_blocked: str | None = None  # why arming is refused now (set by the daemon), or None
+        self._foreign_seen = 0  # frames from another master already turned into a fault
+        self._foreign_snapshot: Counter[int] = Counter()
+        self._auto_arm_pending = False
+        self._last_refusal: str | None = None
 
     @property
     def phase(self) -> Phase:
         return self.supervisor.phase
+
+    @property
+    def lifecycle(self) -> str:
+        """"inactive" (WAIT_NODES, INACTIVE), "active" (ARMING, RAMP, WALK) or "fault"."""
+        return self.supervisor.lifecycle
 
     def tick(self, now_s: float) -> None:
         period = self.config.period_s
@@ -128,10 +155,21 @@ class ControlLoop:
 
         self.io.drain(now_s)
         sup = self.supervisor
+        if self.io.dropped["unexpected_sender"] != self._foreign_seen:
+            self._another_master(now_s)
         before = sup.phase
         sup.update(now_s)
         phase = sup.phase
-        if phase is Phase.ARMING:
+        if phase is Phase.INACTIVE:
+            if before is Phase.WAIT_NODES:
+                self._auto_arm_pending = self.config.auto_arm
+                self._last_refusal = None
+            if self._auto_arm_pending:
+                self._auto_arm(now_s)
+                phase = sup.phase
+        if phase is Phase.INACTIVE:
+            self._idle_if_not(now_s)
+        elif phase is Phase.ARMING:
             self._arm(now_s)
         elif phase is Phase.RAMP:
             if before is not Phase.RAMP:
@@ -144,12 +182,137 @@ class ControlLoop:
         elif phase is Phase.FAULT:
             self._safe_stop(now_s)
 
+    # -- the operator's commands -----------------------------------------------------------
+    def request_arm(self, now_s: float) -> str | None:
+        """INACTIVE -> ARMING. Refused (the reason returned) outside INACTIVE, while
+        ``arm_blocked``, with a silent node, an axis reporting an error (named, with its error:
+        clear the faults first) or an axis not IDLE. Never sends Clear_Errors."""
+        reason = self._arm_refusal(now_s)
+        if reason is not None:
+            log.warning("arm refused at t=%.3f s: %s", now_s, reason)
+            return reason
+        self._auto_arm_pending = False
+        self._last_refusal = None
+        log.info("arm at t=%.3f s: arming %s", now_s, ", ".join(a.name for a in self.axes))
+        self.supervisor.arm(now_s)
+        return None
+
+    def _arm_refusal(self, now_s: float) -> str | None:
+        sup = self.supervisor
+        if sup.phase is not Phase.INACTIVE:
+            return f"cannot arm in phase {sup.phase.value}: only from inactive"
+        if self.arm_blocked:
+            return self.arm_blocked
+        silent = sup.silent_nodes(now_s)
+        if silent:
+            return f"node(s) silent: {', '.join(silent)}"
+        errors = [f"{a.name}: {error_text(a.error)}" for a in self.axes if a.error]
+        if errors:
+            return f"axis error(s) {'; '.join(errors)}: clear faults first"
+        busy = [f"{a.name}: {a.state.name}" for a in self.axes if a.state is not AxisState.IDLE]
+        if busy:
+            return f"axis not IDLE ({'; '.join(busy)})"
+        return None
+
+    def _auto_arm(self, now_s: float) -> None:
+        """``auto_arm``: request the arm in the tick INACTIVE is reached from WAIT_NODES; while it
+        is refused, again every ``ARM_RETRY_S`` (each new reason logged once)."""
+        sup = self.supervisor
+        if now_s - sup.last_arm_request_s < sup.ARM_RETRY_S and self._last_refusal is not None:
+            return
+        reason = self._arm_refusal(now_s)
+        if reason is None:
+            log.info("auto_arm: every node heard, arming by itself")
+            self.request_arm(now_s)
+            return
+        sup.last_arm_request_s = now_s
+        if reason != self._last_refusal:
+            log.warning("auto_arm: arm refused at t=%.3f s: %s (retrying every %g s)", now_s, reason,
+                        sup.ARM_RETRY_S)
+        self._last_refusal = reason
+
+    def request_disarm(self, now_s: float) -> str | None:
+        """ARMING/RAMP/WALK -> INACTIVE: every axis is sent IDLE (not a fault)."""
+        sup = self.supervisor
+        if sup.phase not in ACTIVE_PHASES:
+            reason = f"not armed (phase {sup.phase.value})"
+            log.warning("disarm refused at t=%.3f s: %s", now_s, reason)
+            return reason
+        for a in self.axes:
+            self.io.send(a.state_frame(AxisState.IDLE), now_s)
+        self._last_idle_s = now_s
+        self._auto_arm_pending = False
+        log.warning("disarm at t=%.3f s (in %s): IDLE sent to every axis", now_s, sup.phase.value)
+        sup.disarm(now_s)
+        return None
+
+    def request_estop(self, now_s: float) -> str | None:
+        """Any phase: ODrive's Estop to every axis (each disarms and latches ESTOP_REQUESTED until
+        Clear_Errors) and FAULT, cause "estop by operator". Never refused."""
+        for a in self.axes:
+            self.io.send(a.estop_frame(), now_s)
+        log.error("estop by operator at t=%.3f s (in %s): Estop sent to every axis", now_s,
+                  self.supervisor.phase.value)
+        self.supervisor.fault("estop by operator", now_s)
+        return None
+
+    def request_clear_faults(self, now_s: float) -> str | None:
+        """FAULT, INACTIVE or WAIT_NODES: Clear_Errors to every axis (each axis's error before is
+        logged); from FAULT back to WAIT_NODES, where the nodes are heard afresh. Refused while
+        armed. The only place Clear_Errors is ever sent."""
+        sup = self.supervisor
+        if sup.phase in ACTIVE_PHASES:
+            reason = f"armed (phase {sup.phase.value}): disarm first"
+            log.warning("clear faults refused at t=%.3f s: %s", now_s, reason)
+            return reason
+        for a in self.axes:
+            log.warning("clear faults at t=%.3f s: Clear_Errors to %s (error before: %s, state %s)", now_s, a.name,
+                        error_text(a.error), a.state.name)
+            self.io.send(a.clear_errors_frame(), now_s)
+        self._foreign_seen = self.io.dropped["unexpected_sender"]
+        self._foreign_snapshot = Counter(self.io.foreign)
+        if sup.phase is Phase.FAULT:
+            sup.clear_fault(now_s)
+        return None
+
+    def status(self) -> dict:
+        """The loop's state, JSON-serialisable."""
+        sup = self.supervisor
+        axes = {}
+        for a in self.axes:
+            axes[a.name] = {"state": a.state.name, "error": int(a.error), "error_names": error_names(a.error),
+                            "pos_rad": a.pos_rad if math.isfinite(a.pos_rad) else None,
+                            "bus_voltage_v": a.bus_voltage_v}
+        s = self.stats
+        return {"phase": sup.phase.value, "lifecycle": sup.lifecycle, "fault_cause": sup.fault_cause,
+                "fault_t_s": sup.fault_t_s if math.isfinite(sup.fault_t_s) else None, "axes": axes,
+                "ticks": s.ticks, "late_ticks": s.late_ticks, "max_period_s": s.max_period_s,
+                "steps": len(s.steps), "reflexes": len(s.reflexes), "arm_blocked": self.arm_blocked}
+
+    # -- the bus -----------------------------------------------------------------------------
+    def _another_master(self, now_s: float) -> None:
+        """Frames only a master sends, to our nodes, that we did not send: a latched FAULT."""
+        io = self.io
+        n = io.dropped["unexpected_sender"] - self._foreign_seen
+        self._foreign_seen = io.dropped["unexpected_sender"]
+        new = io.foreign - self._foreign_snapshot
+        self._foreign_snapshot = Counter(io.foreign)
+        ids = ", ".join(f"0x{arb:03x}" for arb in new) or "?"
+        self.supervisor.fault(f"another master on the bus: id {ids}, {n} frame(s)", now_s)
+
     # -- phases ----------------------------------------------------------------------------
+    def _idle_if_not(self, now_s: float) -> None:
+        """INACTIVE: IDLE to any axis whose heartbeat says it is not (again every IDLE_RESEND_S)."""
+        busy = [a for a in self.axes if a.state is not AxisState.IDLE]
+        if busy and now_s - self._last_idle_s >= IDLE_RESEND_S:
+            self._last_idle_s = now_s
+            for a in busy:
+                self.io.send(a.state_frame(AxisState.IDLE))
+
     def _arm(self, now_s: float) -> None:
         if self.supervisor.arm_due(now_s):
             for a in self.axes:
                 if not a.closed_loop:
-                    self.io.send(a.clear_errors_frame())
                     self.io.send(a.mode_frame(ControlMode.POSITION_CONTROL, InputMode.PASSTHROUGH))
                     self.io.send(a.limits_frame())
                     self.io.send(a.state_frame(AxisState.CLOSED_LOOP_CONTROL))
@@ -228,7 +391,7 @@ class ControlLoop:
         self.stats.command_ticks += 1
 
     def _safe_stop(self, now_s: float) -> None:
-        if now_s - self._last_idle_s >= 0.1:
+        if now_s - self._last_idle_s >= IDLE_RESEND_S:
             self._last_idle_s = now_s
             for a in self.axes:
                 self.io.send(a.state_frame(AxisState.IDLE))

@@ -1,17 +1,43 @@
-"""Bring-up and supervision: the controller's phases and what moves it between them.
+"""Bring-up and supervision: the controller's lifecycle, its phases and what moves it between them.
 
-WAIT_NODES  until every axis and the sensor board has sent a heartbeat (timeout: FAULT).
-ARMING      Clear_Errors, Set_Controller_Mode(POSITION_CONTROL, PASSTHROUGH), Set_Limits (the
-            axis's configured velocity and current limits) and Set_Axis_State(CLOSED_LOOP_CONTROL)
-            to each axis, repeated every 0.5 s, holding the measured position, until every
-            heartbeat reports CLOSED_LOOP_CONTROL with no error.
-RAMP        a smooth move from the pose found at bring-up to the gait's start pose.
-WALK        the CPG runs.
-FAULT       an axis left closed loop or reported an error, or a node went silent: every axis is
-            sent IDLE (repeated each heartbeat period), no position target is sent again and
-            learning is paused (the premotor hears no more gates or reflexes). The cause and
-            the time are kept (``fault_cause``, ``fault_t_s``) and logged. FAULT is latched:
-            only a restart of the controller leaves it.
+=============  ===========  ==================================================================
+phase          lifecycle    what it is, and what leaves it
+=============  ===========  ==================================================================
+WAIT_NODES     inactive     until every axis and the sensor board has sent a heartbeat and every
+                            axis an encoder estimate (-> INACTIVE); nothing is sent. No node
+                            after ``bringup_timeout_s``: FAULT.
+INACTIVE       inactive     every node heard, the axes IDLE (an axis whose heartbeat says
+                            otherwise is sent IDLE, every 0.1 s): waiting for an arm command
+                            (:meth:`controller.loop.ControlLoop.request_arm`; with
+                            ``auto_arm`` the loop requests it itself in the tick it enters
+                            INACTIVE from WAIT_NODES). A silent node is a FAULT; an axis
+                            reporting an error is not (it is IDLE) but blocks arming.
+ARMING         active       Set_Controller_Mode(POSITION_CONTROL, PASSTHROUGH), Set_Limits (the
+                            axis's configured velocity and current limits) and
+                            Set_Axis_State(CLOSED_LOOP_CONTROL) to each axis, repeated every
+                            0.5 s, holding the measured position, until every heartbeat reports
+                            CLOSED_LOOP_CONTROL with no error (-> RAMP). Never Clear_Errors: an
+                            axis with a latched error is refused at the arm command, and an
+                            axis that reports an error while arming, a silent node, or no closed
+                            loop after ``bringup_timeout_s`` is a FAULT.
+RAMP           active       a smooth move from the pose found at arming to the gait's start pose.
+WALK           active       the CPG runs.
+FAULT          fault        an axis left closed loop or reported an error while armed, a node
+                            went silent, another master commanded our nodes, or the operator's
+                            Estop: every axis is sent IDLE (repeated each heartbeat period), no
+                            position target is sent again and learning is paused (the premotor
+                            hears no more gates or reflexes). The cause and the time are kept
+                            (``fault_cause``, ``fault_t_s``) and logged. FAULT is latched: only
+                            clearing the faults (:meth:`~controller.loop.ControlLoop.
+                            request_clear_faults`: Clear_Errors to every axis, the one place it
+                            is sent) or a restart of the controller leaves it, for WAIT_NODES.
+=============  ===========  ==================================================================
+
+The operator's commands (:class:`controller.loop.ControlLoop`): arm (INACTIVE -> ARMING),
+disarm (ARMING/RAMP/WALK -> INACTIVE, axes IDLE, not a fault), estop (any phase: ODrive's
+Estop to every axis, which latches ESTOP_REQUESTED in the drivers, and FAULT), clear faults
+(FAULT, INACTIVE or WAIT_NODES: Clear_Errors to every axis; from FAULT back to WAIT_NODES, where
+every node must send a heartbeat again, after the clearing, before INACTIVE).
 
 A node is silent when no valid frame at all has come from it for ``silence_timeout_s`` (any
 accepted frame is a sign of life: an axis's encoder estimates at 500 Hz, the sensor board's
@@ -27,16 +53,44 @@ import math
 
 from controller.io.axis import AxisLink
 from controller.io.sensors import SensorLink
+from protocol import AxisError
 
 log = logging.getLogger(__name__)
 
 
 class Phase(enum.Enum):
     WAIT_NODES = "wait_nodes"
+    INACTIVE = "inactive"
     ARMING = "arming"
     RAMP = "ramp"
     WALK = "walk"
     FAULT = "fault"
+
+
+LIFECYCLE = {Phase.WAIT_NODES: "inactive", Phase.INACTIVE: "inactive", Phase.ARMING: "active",
+             Phase.RAMP: "active", Phase.WALK: "active", Phase.FAULT: "fault"}
+"""Each phase's lifecycle state, in ros2_control's words ("unconfigured" is the daemon before its
+bus is open: the loop never reports it)."""
+
+ACTIVE_PHASES = frozenset({Phase.ARMING, Phase.RAMP, Phase.WALK})
+"""The phases in which the axes are (being) armed."""
+
+
+def error_text(bits: int) -> str:
+    """ODrive 0.6 error bits by name with their value, e.g. "ESTOP_REQUESTED (0x2000000)"."""
+    return f"{'|'.join(error_names(bits)) or 'none'} ({bits:#x})"
+
+
+def error_names(bits: int) -> list[str]:
+    """The names of ODrive 0.6 error bits set in ``bits`` (bits it does not define: "0x..")."""
+    names = [e.name for e in AxisError if e.value and bits & e.value]
+    unknown = bits & ~_KNOWN_ERRORS
+    if unknown:
+        names.append(f"{unknown:#x}")
+    return names
+
+
+_KNOWN_ERRORS = int(sum(e.value for e in AxisError))
 
 
 class Supervisor:
@@ -54,6 +108,12 @@ class Supervisor:
         self.fault_cause = ""
         self.fault_t_s = math.nan
         self.last_arm_request_s = -math.inf
+        # WAIT_NODES takes only heartbeats later than this (after clearing faults: fresh ones)
+        self.heard_after_s = -math.inf
+
+    @property
+    def lifecycle(self) -> str:
+        return LIFECYCLE[self.phase]
 
     def enter(self, phase: Phase, now_s: float) -> None:
         log.info("phase %s -> %s at t=%.3f s", self.phase.value, phase.value, now_s)
@@ -67,6 +127,23 @@ class Supervisor:
             log.error("safe stop at t=%.3f s: %s", now_s, cause)
             self.enter(Phase.FAULT, now_s)
 
+    def arm(self, now_s: float) -> None:
+        """INACTIVE -> ARMING (the caller checked that it may); the first arming frames are due at once."""
+        self.last_arm_request_s = -math.inf
+        self.enter(Phase.ARMING, now_s)
+
+    def disarm(self, now_s: float) -> None:
+        """ARMING/RAMP/WALK -> INACTIVE (the caller sends IDLE)."""
+        self.enter(Phase.INACTIVE, now_s)
+
+    def clear_fault(self, now_s: float) -> None:
+        """FAULT -> WAIT_NODES: every node must send a heartbeat again, after ``now_s``."""
+        log.warning("fault cleared at t=%.3f s (was: %s at t=%.3f s)", now_s, self.fault_cause, self.fault_t_s)
+        self.fault_cause = ""
+        self.fault_t_s = math.nan
+        self.heard_after_s = now_s
+        self.enter(Phase.WAIT_NODES, now_s)
+
     def _last_seen(self) -> list[tuple[str, float, float]]:
         """(node, last valid frame of any kind, last heartbeat) for every node [s]."""
         s = self.sensors
@@ -79,28 +156,43 @@ class Supervisor:
         return [name for name, seen, beat in self._last_seen()
                 if now_s - seen > self.silence_timeout_s or now_s - beat > self.stale_heartbeat_s]
 
+    def _fault_if_silent(self, now_s: float) -> bool:
+        silent = self.silent_nodes(now_s)
+        if silent:
+            self.fault(f"node(s) silent for more than {self.silence_timeout_s:g} s (or no heartbeat for "
+                       f"{self.stale_heartbeat_s:g} s): {silent}", now_s)
+        return bool(silent)
+
     def update(self, now_s: float) -> None:
         """Move between phases on what the bus has said; never sends anything itself."""
         if math.isnan(self.phase_t_s):
             self.phase_t_s = now_s
         phase = self.phase
         if phase is Phase.WAIT_NODES:
-            heard = all(now_s - beat <= self.silence_timeout_s for _, _, beat in self._last_seen())
+            after = self.heard_after_s
+            heard = all(now_s - beat <= self.silence_timeout_s and beat > after for _, _, beat in self._last_seen())
             if heard and all(math.isfinite(a.pos_rad) for a in self.axes):
-                self.enter(Phase.ARMING, now_s)
+                self.enter(Phase.INACTIVE, now_s)
             elif now_s - self.phase_t_s > self.bringup_timeout_s:
                 self.fault(f"no heartbeat or encoder from {self.silent_nodes(now_s) or 'an axis'}", now_s)
+        elif phase is Phase.INACTIVE:
+            self._fault_if_silent(now_s)
         elif phase is Phase.ARMING:
             if all(a.closed_loop for a in self.axes):
                 self.enter(Phase.RAMP, now_s)
-            elif now_s - self.phase_t_s > self.bringup_timeout_s:
+                return
+            for a in self.axes:
+                if a.error:
+                    self.fault(f"axis {a.name} reported {error_text(a.error)} while arming "
+                               f"(state {a.state.name})", now_s)
+                    return
+            if self._fault_if_silent(now_s):
+                return
+            if now_s - self.phase_t_s > self.bringup_timeout_s:
                 states = {a.name: (a.state.name, hex(a.error)) for a in self.axes}
                 self.fault(f"axes did not reach closed loop: {states}", now_s)
         elif phase in (Phase.RAMP, Phase.WALK):
-            silent = self.silent_nodes(now_s)
-            if silent:
-                self.fault(f"node(s) silent for more than {self.silence_timeout_s:g} s (or no heartbeat for "
-                           f"{self.stale_heartbeat_s:g} s): {silent}", now_s)
+            if self._fault_if_silent(now_s):
                 return
             for a in self.axes:
                 if not a.closed_loop:

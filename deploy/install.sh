@@ -15,8 +15,11 @@
 #   4. the leg's configuration /etc/elegant-stepping/leg.toml from --config FILE (default
 #      configs/odrive-leg.toml), never over an existing one (that one holds your calibration:
 #      the new file goes to leg.toml.new beside it);
-#   5. systemctl daemon-reload, then enable (not start: start it once the leg is calibrated,
-#      docs/deploy.md); --no-enable skips the enable.
+#   5. systemctl daemon-reload, then enable (not start) ONLY if the installed configuration's
+#      calibration is confirmed ([calibration] confirmed = true, written by
+#      'elegant-stepping-leg config confirm' after a bring-up passed on the leg); otherwise it
+#      says how to confirm it and to run 'systemctl enable --now' after (docs/deploy.md, "First
+#      power-on"). --no-enable skips the enable in any case.
 #
 # --dry-run prints the commands and runs none. --root DIR installs the files (steps 3 and 4, and
 # the symlink of step 2) under DIR instead of /, for staging an image or a test; the user, the
@@ -34,7 +37,7 @@ main() {
       --dry-run) dry=1; shift ;;
       --no-enable) enable=0; shift ;;
       --config) config=${2:?--config needs a file}; shift 2 ;;
-      -h|--help) sed -n '2,23p' "${BASH_SOURCE[0]}"; return 0 ;;
+      -h|--help) sed -n '2,26p' "${BASH_SOURCE[0]}"; return 0 ;;
       *) echo "install.sh: unknown option $1" >&2; return 2 ;;
     esac
   done
@@ -85,12 +88,35 @@ main() {
   fi
   run install -m 0640 "$config" "$target"
   host chgrp "$user" "$target"
-  # 5. systemd
+  # 5. systemd: enabled only once the configuration in force is confirmed
   host systemctl daemon-reload
-  if [ "$enable" = 1 ]; then
+  local installed=$etc/leg.toml
+  # the file in force: the installed one; under --dry-run (nothing installed) the one that would be
+  [ -e "$installed" ] || installed=$config
+  local leg=/etc/elegant-stepping/leg.toml
+  if [ "$enable" = 0 ]; then
+    echo "install.sh: not enabling $unit (--no-enable)"
+  elif calibration_confirmed "$installed"; then
     host systemctl enable "$unit"
+  else
+    echo "install.sh: NOT enabling $unit: the calibration in $leg is not confirmed ([calibration] confirmed = false)."
+    echo "  Measure the leg and write the values into $leg (docs/deploy.md, section 3), then, on the leg:"
+    echo "    elegant-stepping-leg bringup --config $leg --json report.json"
+    echo "    sudo elegant-stepping-leg config confirm $leg --bringup report.json"
+    echo "    sudo systemctl enable --now $unit"
+    echo "  (docs/deploy.md, \"First power-on\")"
   fi
-  echo "install.sh: done. Calibrate (docs/deploy.md), check the unit on a development machine with 'elegant-stepping dryrun' (docs/deploy.md), bring the leg up with 'elegant-stepping-leg bringup', then: systemctl start $unit"
+  echo "install.sh: done. Check the unit on a development machine with 'elegant-stepping dryrun'; once enabled and started: elegant-stepping-leg status, then elegant-stepping-leg arm (docs/deploy.md)"
+}
+
+# calibration_confirmed FILE: true if FILE's [calibration] table says confirmed = true (the
+# daemon's own check is DeployConfig.armable_reason; this is only the installer's reading).
+calibration_confirmed() {
+  awk '
+    /^[[:space:]]*\[/ { section = $0; gsub(/[[:space:]]|#.*/, "", section) }
+    section == "[calibration]" && /^[[:space:]]*confirmed[[:space:]]*=[[:space:]]*true([[:space:]]|#|$)/ { yes = 1 }
+    END { exit yes ? 0 : 1 }
+  ' "$1"
 }
 
 # Only when executed, never when sourced.

@@ -383,6 +383,11 @@ class SimOdriveAxis:
         pos, vel = self.motor.motor_state()
         return pos + self.pos_offset_rev, vel
 
+    def latch_error(self, error: AxisError) -> None:
+        """An error latched before anyone commands the axis (an e-stop pressed, a fault left from an
+        earlier run): held as the firmware holds it, the axis IDLE until Clear_Errors."""
+        self._disarm(error)
+
     def _disarm(self, error: AxisError) -> None:
         self.errors |= error
         self.disarm_reason |= error

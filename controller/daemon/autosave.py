@@ -6,7 +6,11 @@ since the last save. The save (write, fsync, rename, fsync: about 2 ms) runs on 
 thread, on a copy of the weights taken on the loop's thread, so a tick never waits for the disk;
 a save still running when the next one is due postpones that one. A failed periodic save is
 logged and retried at the next period; the daemon keeps running. :meth:`WeightAutosave.close`
-waits for a running save and then saves the final weights on the caller's thread.
+waits for a running save and then saves the final weights on the caller's thread, but only if
+they differ from what is on disk (``saved``: the weights loaded at start, then each save's): a run
+that never changed them (never walked, no learning update) never writes, so the good file and
+its older generations stay byte-identical. Each save keeps ``generations`` good files
+(:func:`controller.stepping.weights.save_weights`).
 """
 
 from __future__ import annotations
@@ -39,12 +43,14 @@ class AutosaveConfig:
 
 class WeightAutosave:
     def __init__(self, path: str | Path, cell_width_m: float, config: AutosaveConfig = AutosaveConfig(),
-                 saved: np.ndarray | None = None) -> None:
-        """``saved``: the weights already in ``path`` (the ones loaded at start), so that an
-        unchanged copy is not written again."""
+                 saved: np.ndarray | None = None, generations: int = 2) -> None:
+        """``saved``: the weights the run started from (loaded from ``path`` or one of its older
+        generations, or the zeros it started with), so that an unchanged copy is never written."""
         self.path = Path(path)
         self.cell_width_m = cell_width_m
         self.config = config
+        self.generations = generations
+        self.unchanged = False  # set by close(): nothing to write
         self.saves = 0
         self.failures = 0
         self.walked_s = 0.0
@@ -82,7 +88,7 @@ class WeightAutosave:
             return False
         copy = np.array(weights, dtype=float)
         self._saved = copy
-        self._pending = self._pool.submit(save_weights, self.path, copy, self.cell_width_m)
+        self._pending = self._pool.submit(save_weights, self.path, copy, self.cell_width_m, self.generations)
         return True
 
     def flush(self) -> None:
@@ -96,14 +102,19 @@ class WeightAutosave:
             self._reap()
 
     def close(self, weights: np.ndarray | None) -> bool:
-        """Wait for a running save, then save ``weights`` (None: nothing to save) now. True if the
-        final save succeeded (or there was nothing to save); a failure is logged, never raised."""
+        """Wait for a running save, then save ``weights`` (None: nothing to save) now, unless they
+        equal what is on disk (``unchanged`` is then True). True if the final save succeeded (or
+        there was nothing to save); a failure is logged, never raised."""
         self.flush()
         self._pool.shutdown(wait=True)
         if weights is None:
             return True
+        if self._saved is not None and np.array_equal(weights, self._saved):
+            self.unchanged = True
+            log.info("weights: unchanged since %s, not written", "the last save" if self.saves else "the start")
+            return True
         try:
-            save_weights(self.path, weights, self.cell_width_m)
+            save_weights(self.path, weights, self.cell_width_m, self.generations)
         except (OSError, ValueError) as exc:
             self.failures += 1
             log.error("weights: final save to %s failed: %s", self.path, exc)

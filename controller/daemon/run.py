@@ -1,27 +1,55 @@
 """The ``controller`` process: the controller daemon at its fixed rate on a real CAN bus.
 
-:class:`controller.loop.ControlLoop` (unchanged) ticks on the monotonic clock, paced by
+:class:`controller.loop.ControlLoop` ticks on the monotonic clock, paced by
 :class:`controller.daemon.pacing.Pacer` (missed periods are skipped, never bunched). Everything it knows
-comes from the bus. With ``records``, it writes its own records as JSON lines: ``phase``
-(every phase change), ``step`` (each step cycle once complete: gated range, cell, burst change
-asked for, burst length, swing), ``reflex`` (each reflex, with the weights' L1 norm after it)
+comes from the bus. With ``records``, it writes its own records as JSON lines: ``clock``, ``phase``
+(every phase change), ``command`` (every command from the control socket, accepted or refused),
+``step`` (each step cycle once complete: gated range, cell, burst change asked for, burst length,
+swing), ``reflex`` (each reflex, with the weights' L1 norm after it), ``weights`` (a file set aside)
 and a ``final`` line at exit (loop counters, pacing, frames, weights). Times are the monotonic
 clock of this machine (or VM), the clock the firmware-sim process stamps its ground truth with.
+With ``records_max_bytes`` the records and the ticks file rotate (:mod:`controller.daemon.rotate`:
+``FILE`` the newest, ``FILE.1`` ... ``FILE.<records_keep>`` older ones; a restarted daemon rotates
+the previous run's file instead of overwriting it).
 
-With ``weights``, learning resumes across restarts: the weights are loaded at start with
-:func:`controller.stepping.weights.load_weights_or_fallback` (the file, else its ``.prev`` copy, else zeros,
-each failure logged) into the premotor, saved while walking (:class:`controller.daemon.autosave.WeightAutosave`:
-every ``save_every_s`` seconds of walking, when they changed, off the loop's thread) and at exit.
+The lifecycle: the daemon opens its bus and its control socket and waits for its nodes
+(WAIT_NODES); once every node is heard it is **inactive** (INACTIVE, axes IDLE) and tells systemd
+READY. It arms only when a person asks (``elegant-stepping-leg arm``, through the control socket,
+:mod:`controller.daemon.control`), or by itself with ``auto_arm`` (the simulated leg). With a
+configuration file (``deploy``), ``ControlLoop.arm_blocked`` is its
+:meth:`~controller.settings.file.DeployConfig.armable_reason` (a calibration nobody confirmed is
+never armed). Commands from the control socket are queued by its threads and executed here, by
+this loop's thread, at the start of a tick, before :meth:`ControlLoop.tick`.
 
-SIGTERM or SIGINT stops it cleanly, in order: every axis is sent Set_Axis_State(IDLE), then, with
-``weights``, the learned weights are saved, then the records are closed. The ``final`` record
-says why it stopped (``stopped_by``: ``"SIGTERM"``, ``"SIGINT"`` or ``"duration"``), where the
-weights came from (``weights_source``: ``"file"``, ``"prev"``, ``"zeros"``, or None without
-``weights``), how many saves succeeded and whether the last one did (``weights_saved``).
+With ``weights``, learning resumes across restarts, and weights are never destroyed:
 
-Under systemd (``Type=notify``, ``$NOTIFY_SOCKET`` set) it tells the service manager READY once the
-axes are in closed loop (RAMP), its STATUS on each phase change, WATCHDOG pings from this loop
-(every half of ``$WATCHDOG_USEC``, FAULT included) and STOPPING when the shutdown begins
+- at start the weights' folder must be writable (else the daemon refuses to start: exit 2);
+- :func:`controller.stepping.weights.resume_weights` loads the first good generation (the file,
+  ``.prev``, ``.prev2``, ...: ``weights_generations`` in all); a file that is intact but does not fit
+  this configuration (another shape or cell width) is renamed aside to
+  ``FILE.incompatible-<UTC timestamp>``, logged at ERROR and listed in the final record
+  (``weights_set_aside``); with no good generation the run starts from zeros;
+- the weights are saved while walking (:class:`controller.daemon.autosave.WeightAutosave`, every
+  ``save_every_s`` seconds of walking, when they changed, off the loop's thread) and at exit, but
+  only if they differ from what the run started from: a run that never learned (never walked)
+  writes nothing, so the file stays byte-identical, and zeros are never written over anything;
+- each save keeps ``weights_generations`` good files, rotated atomically.
+
+Stopping: SIGTERM, SIGINT, SIGHUP and SIGUSR1 all stop it the same way, in order: STOPPING to
+systemd, every axis sent Set_Axis_State(IDLE) (three times), the control socket closed (and its
+file removed), the remaining records, the weights saved (if they changed), the final record, exit
+0. SIGHUP does **not** reload the configuration: a configuration change needs a restart, on
+purpose (the calibration, the limits and the bus are read once, at start, and checked then). A
+second signal while the stop runs changes nothing (it is counted in ``final["signals"]``). The
+``final`` record says why it stopped (``stopped_by``: ``"SIGTERM"``, ``"SIGINT"``, ``"SIGHUP"``,
+``"SIGUSR1"``, ``"duration"`` or ``"event"``), where the weights came from (``weights_source``:
+``"file"``, ``"prev"``, ``"prev2"``, ..., ``"zeros"``, or None without ``weights``), how many saves
+succeeded and whether the last one did (``weights_saved``: True, False, or None when there was
+nothing to write).
+
+Under systemd (``Type=notify``, ``$NOTIFY_SOCKET`` set) it tells the service manager READY once
+inactive and healthy, its STATUS (lifecycle and phase) on each phase change, WATCHDOG pings from
+this loop (every half of ``$WATCHDOG_USEC``, FAULT included) and STOPPING when the shutdown begins
 (:mod:`controller.daemon.notify`); ``final["sd_notify"]`` counts what it sent. Without
 ``$NOTIFY_SOCKET`` none of it happens.
 """
@@ -30,29 +58,49 @@ from __future__ import annotations
 
 import json
 import logging
-from array import array
 import math
 import os
 import signal
+import tempfile
+import threading
 import time
+from array import array
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 import can
 import numpy as np
 
 from controller.config import ControllerConfig
-from controller.stepping.learner import AdaptivePremotor
-from controller.loop import ControlLoop, StepRecord
-from controller.supervisor import Phase
-from controller.stepping.weights import load_weights_or_fallback
 from controller.daemon.autosave import AutosaveConfig, WeightAutosave
-from controller.daemon.notify import DaemonNotify
+from controller.daemon.control import ControlServer
 from controller.daemon.fastbus import lean
+from controller.daemon.notify import DaemonNotify
 from controller.daemon.pacing import Pacer
+from controller.daemon.rotate import RotatingFile
+from controller.loop import ControlLoop, StepRecord
+from controller.stepping.learner import AdaptivePremotor
+from controller.stepping.weights import resume_weights
+from controller.supervisor import Phase
 from protocol import AxisState
 
 log = logging.getLogger(__name__)
+
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGUSR1)
+"""Every one of them stops the daemon the same way (SIGHUP included: no reload)."""
+
+
+class StartError(ValueError):
+    """The daemon refuses to start (one line; the leg verb exits 2)."""
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("elegant-stepping")
+    except Exception:  # noqa: BLE001 - not installed (a clone on sys.path)
+        return "unknown"
 
 
 def _num(x: float | None) -> float | None:
@@ -68,23 +116,39 @@ def step_dict(s: StepRecord) -> dict[str, Any]:
 
 
 class Records:
-    def __init__(self, path: str | Path | None) -> None:
-        self.f: TextIO | None = open(path, "w", buffering=1 << 16) if path else None
+    """The records file (JSON lines), rotated within ``max_bytes`` (None: one file, overwritten at
+    start). Each new file begins with the clock line and the current phase."""
+
+    def __init__(self, path: str | Path | None, max_bytes: int | None = None, keep: int = 3) -> None:
+        self.clock: dict[str, Any] = {"kind": "clock", "realtime_minus_monotonic_s": time.time() - time.monotonic()}
+        self.last_phase: dict[str, Any] | None = None
+        self.out = None if not path else RotatingFile(path, max_bytes, keep, header=self._header,
+                                                      rotate_at_start=True)
         self.steps_written = 0
         self.reflexes_written = 0
+        self.write(self.clock)
+
+    @property
+    def f(self):
+        return None if self.out is None else self.out.f
+
+    def _header(self) -> list[str]:
+        return [json.dumps(x) + "\n" for x in (self.clock, self.last_phase) if x is not None]
 
     def write(self, obj: dict[str, Any]) -> None:
-        if self.f is not None:
-            self.f.write(json.dumps(obj) + "\n")
+        if obj.get("kind") == "phase":
+            self.last_phase = obj
+        if self.out is not None:
+            self.out.write(json.dumps(obj) + "\n")
 
     def flush(self) -> None:
-        if self.f is not None:
-            self.f.flush()
+        if self.out is not None:
+            self.out.flush()
 
     def close(self) -> None:
-        if self.f is not None:
-            self.f.close()
-            self.f = None
+        if self.out is not None:
+            self.out.close()
+            self.out = None
 
 
 def weights_of(premotor) -> np.ndarray | None:
@@ -92,61 +156,182 @@ def weights_of(premotor) -> np.ndarray | None:
     return None if w is None else np.asarray(w, dtype=float)
 
 
+def check_writable_folder(folder: Path, what: str) -> None:
+    """Refuse to start (:class:`StartError`) unless a file can be created in ``folder`` (made if missing)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-check.", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise StartError(f"{what} folder {folder} is not writable ({exc.strerror or exc}): the daemon would lose "
+                         f"what it learns; fix its permissions or the configuration's path") from None
+
+
+def _file_age_s(path: Path | None) -> float | None:
+    if path is None:
+        return None
+    try:
+        return max(0.0, time.time() - path.stat().st_mtime)
+    except OSError:
+        return None
+
+
 def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = ControllerConfig(), *,
                    records: str | Path | None = None, weights: str | Path | None = None,
                    ticks: str | Path | None = None, duration_s: float | None = None,
-                   save_every_s: float = AutosaveConfig.every_s) -> dict[str, Any]:
-    """Run until SIGTERM/SIGINT or ``duration_s``. ``ticks``: write, for every tick, its clock and
-    the number of frames it read from the bus (pairs of float64, native byte order; the count is
-    -1 on a bus that does not count), so ``replay`` can tick as the live loop did. ``weights``:
-    resume from and save to this file (see the module docstring); ``save_every_s``: seconds of
-    walking between periodic saves."""
-    stop: dict[str, Any] = {"flag": False, "by": "duration"}
+                   save_every_s: float = AutosaveConfig.every_s, deploy=None,
+                   control_socket: str | Path | None = None, control_group: str = "",
+                   records_max_bytes: int | None = None, records_keep: int = 3,
+                   weights_generations: int = 3, stop_event: threading.Event | None = None,
+                   restore_signals: bool = True) -> dict[str, Any]:
+    """Run until a stop signal (SIGTERM, SIGINT, SIGHUP, SIGUSR1), ``duration_s`` or ``stop_event``.
 
-    def on_signal(signum, frame):  # noqa: ARG001
-        stop["flag"] = True
-        stop["by"] = signal.Signals(signum).name
+    ``ticks``: write, for every tick, its clock and the number of frames it read from the bus
+    (pairs of float64, native byte order; the count is -1 on a bus that does not count), so
+    ``replay`` can tick as the live loop did. ``weights``: resume from and save to this file (see
+    the module docstring), ``weights_generations`` good files kept; ``save_every_s``: seconds of
+    walking between periodic saves. ``deploy``: the configuration file's
+    :class:`~controller.settings.file.DeployConfig` (its ``armable_reason`` blocks arming).
+    ``control_socket``: the control socket's path (None: none), ``control_group`` its group.
+    ``records_max_bytes``/``records_keep``: rotation of ``records`` and ``ticks`` (None: none).
+    Signal handlers are installed only on the main thread (elsewhere stop with ``stop_event`` or
+    ``duration_s``); ``restore_signals=False`` leaves them in place after the return, so a late
+    signal still changes nothing (the command line's ``run``).
+    Raises :class:`StartError` (nothing started) when the weights' folder is not writable, the
+    control socket cannot be made, or the weights cannot be set aside."""
+    t_start = time.time()
+    stop: dict[str, Any] = {"flag": False, "by": "duration", "signals": []}
+
+    def on_signal(signum, frame):  # noqa: ARG001 - no logging here: only flags
+        name = signal.Signals(signum).name
+        stop["signals"].append(name)
+        if not stop["flag"]:
+            stop["flag"] = True
+            stop["by"] = name
 
     autosave_config = AutosaveConfig(every_s=save_every_s)
     premotor = None
+    resumed = None
     source = None
+    initial = None
     if weights is not None:
-        initial, source = load_weights_or_fallback(weights, config.encoder.n_cells, config.encoder.cell_width_m)
-        where = {"file": str(weights), "prev": f"{weights}.prev", "zeros": "zeros"}[source]
-        log.info("weights: resuming from %s (failures were logged by controller.stepping.weights)", where)
+        weights = Path(weights)
+        check_writable_folder(weights.parent, "the weights'")
+        try:
+            resumed = resume_weights(weights, config.encoder.n_cells, config.encoder.cell_width_m,
+                                     generations=weights_generations)
+        except ValueError as exc:
+            raise StartError(str(exc)) from None
+        initial, source = resumed.weights, resumed.source
+        log.info("weights: resuming from %s (failures were logged by controller.stepping.weights)",
+                 resumed.path if resumed.path is not None else "zeros")
         premotor = AdaptivePremotor(config.encoder.n_cells, config.cpg.burst_s, config.learner, weights=initial)
 
-    previous_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    server = None
+    if control_socket:
+        server = ControlServer(control_socket, control_group)
+        try:
+            server.start()
+        except ValueError as exc:
+            raise StartError(str(exc)) from None
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous_handlers = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS} if main_thread else {}
+
+    def give_back() -> None:
+        if restore_signals:
+            for s, handler in previous_handlers.items():
+                signal.signal(s, handler)
+
     try:
         raw_bus = can.Bus(**bus_kw)
     except BaseException:
-        for s, handler in previous_handlers.items():
-            signal.signal(s, handler)
+        give_back()
+        if server is not None:
+            server.close()
         raise
     bus = lean(raw_bus, timestamps=False)
     loop = ControlLoop(config, bus, premotor)
+    if deploy is not None:
+        loop.arm_blocked = deploy.armable_reason()
+        if loop.arm_blocked:
+            log.warning("arming blocked: %s", loop.arm_blocked)
     # bus errors and bus-off: BusIO closes the bus and opens a new one with backoff
     loop.io.reopen = lambda: lean(can.Bus(**bus_kw), timestamps=False)
     autosave = None if weights is None else WeightAutosave(weights, config.encoder.cell_width_m, autosave_config,
-                                                           saved=initial if source == "file" else None)
-    rec = Records(records)
+                                                           saved=initial, generations=weights_generations)
+    try:
+        rec = Records(records, records_max_bytes, records_keep)
+        tick_file = None if not ticks else RotatingFile(ticks, records_max_bytes, records_keep, binary=True,
+                                                        rotate_at_start=True)
+    except OSError:
+        give_back()
+        if server is not None:
+            server.close()
+        raw_bus.shutdown()
+        raise
+    for old, moved, why in ([] if resumed is None else resumed.set_aside):
+        rec.write({"kind": "weights", "event": "set_aside", "file": old, "moved_to": moved, "reason": why})
     pacer = Pacer(config.period_s, catch_up=False, late_factor=config.late_factor)
     notify = DaemonNotify()  # systemd's READY/WATCHDOG/STATUS/STOPPING; a no-op without NOTIFY_SOCKET
     phase = None
     stats = loop.stats
     flush_every = max(1, int(round(0.1 * config.rate_hz)))
-    rec.write({"kind": "clock", "realtime_minus_monotonic_s": time.time() - time.monotonic()})
-    tick_file = open(ticks, "wb") if ticks else None
     tick_buf = array("d")
     received = loop.io.received  # frames read by the loop, across bus reopens
+    version = _version()
+    clock = {"now": math.nan}
+    commands: list[dict[str, Any]] = []
+
+    def daemon_status() -> dict[str, Any]:
+        st = loop.status()
+        st.update({
+            "version": version, "pid": os.getpid(), "uptime_s": time.time() - t_start, "bus": dict(bus_kw),
+            "rate_hz": config.rate_hz, "pacing": {"ticks": pacer.ticks, "late_ticks": pacer.late_ticks,
+                                                  "skipped": pacer.skipped,
+                                                  "max_period_us": pacer.max_period_s * 1e6},
+            "weights": None if weights is None else {
+                "file": str(weights), "source": source, "loaded_from": None if resumed.path is None else str(resumed.path),
+                "age_s": _file_age_s(Path(weights)), "saves": autosave.saves, "failures": autosave.failures,
+                "set_aside": [m for _, m, _ in resumed.set_aside]},
+            "records": None if records is None else str(records),
+        })
+        return st
+
+    def execute(verb: str) -> tuple[str | None, dict[str, Any]]:
+        now = clock["now"]
+        refused = None
+        if verb == "arm":
+            refused = loop.request_arm(now)
+        elif verb == "disarm":
+            refused = loop.request_disarm(now)
+        elif verb == "estop":
+            refused = loop.request_estop(now)
+        elif verb == "clear-faults":
+            refused = loop.request_clear_faults(now)
+        if verb != "status":
+            rec.write({"kind": "command", "verb": verb, "t_s": now, "accepted": refused is None, "refused": refused})
+            commands.append({"verb": verb, "t_s": now, "refused": refused})
+            (log.info if refused is None else log.warning)("command %s: %s", verb,
+                                                           "accepted" if refused is None else f"refused: {refused}")
+        return refused, daemon_status()
+
     t0 = pacer.start()
     t_end = math.inf if duration_s is None else t0 + duration_s
-    log.info("controller on %s at %.0f Hz", bus_kw, config.rate_hz)
+    log.info("controller %s on %s at %.0f Hz%s", version, bus_kw, config.rate_hz,
+             "" if server is None else f", control socket {server.path}")
     try:
         while not stop["flag"]:
             now = pacer.wait()
             if now >= t_end:
                 break
+            if stop_event is not None and stop_event.is_set():
+                stop["by"] = "event"
+                break
+            if server is not None:
+                clock["now"] = now
+                server.run_pending(execute)  # the operator's commands, on this thread, before the tick
             loop.tick(now)
             notify.tick(now)  # WATCHDOG=1 when due: from this loop only, so a stuck loop stops pinging
             if autosave is not None:
@@ -157,12 +342,12 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                 tick_buf.append(float(got - received))
                 received = got
                 if len(tick_buf) >= 512:
-                    tick_buf.tofile(tick_file)
+                    tick_file.write_array(tick_buf)
                     del tick_buf[:]
             if loop.phase is not phase:
                 phase = loop.phase
                 notify.phase(phase, loop.supervisor.fault_cause)
-                rec.write({"kind": "phase", "phase": phase.value, "t_s": now,
+                rec.write({"kind": "phase", "phase": phase.value, "lifecycle": loop.lifecycle, "t_s": now,
                            "fault_cause": loop.supervisor.fault_cause or None})
                 rec.flush()
             steps = stats.steps
@@ -189,16 +374,24 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                 except can.CanError:
                     pass
             time.sleep(0.01)
+        if server is not None:
+            server.close()  # no command runs after the axes were sent IDLE
         if tick_file is not None:
-            tick_buf.tofile(tick_file)
+            tick_file.write_array(tick_buf)
             tick_file.close()
         for s in stats.steps[rec.steps_written:]:
             rec.write(step_dict(s))
         w = weights_of(loop.premotor)
         saved = None if autosave is None else autosave.close(w)
+        if autosave is not None and autosave.unchanged and autosave.saves == 0:
+            saved = None  # nothing learned: nothing written, the file untouched
+        if len(stop["signals"]) > 1:
+            log.info("stop: %d more signal(s) during the stop (%s), ignored", len(stop["signals"]) - 1,
+                     ", ".join(stop["signals"][1:]))
         final = {
             "kind": "final",
             "phase": loop.phase.value,
+            "lifecycle": loop.lifecycle,
             "fault_cause": loop.supervisor.fault_cause or None,
             "ticks": stats.ticks,
             "command_ticks": stats.command_ticks,
@@ -214,9 +407,16 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             "bus_events": dict(sorted(loop.io.bus_events.items())),
             "weights": None if w is None else w.tolist(),
             "stopped_by": stop["by"],
+            "signals": list(stop["signals"]),
+            "commands": commands,
+            "control": None if server is None else server.summary(),
             "weights_source": source,
             "weights_saves": None if autosave is None else autosave.saves,
             "weights_saved": saved,
+            "weights_unchanged": None if autosave is None else autosave.unchanged,
+            "weights_set_aside": None if resumed is None else [
+                {"file": old, "moved_to": moved, "reason": why} for old, moved, why in resumed.set_aside],
+            "records_rotations": None if rec.out is None else rec.out.rotations,
             "sd_notify": notify.summary(),
         }
         rec.write(final)
@@ -225,8 +425,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             loop.io.bus.shutdown()
         raw_bus.shutdown()
         notify.close()
-        for s, handler in previous_handlers.items():
-            signal.signal(s, handler)
+        give_back()
     return final
 
 
@@ -250,4 +449,4 @@ def phases_seen(path: str | Path) -> list[str]:
         return []
 
 
-__all__ = ["run_controller", "read_records", "phases_seen", "Phase"]
+__all__ = ["run_controller", "read_records", "phases_seen", "Phase", "StartError", "STOP_SIGNALS"]

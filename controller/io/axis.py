@@ -39,6 +39,9 @@ _KNOWN_ERRORS = int(sum(e.value for e in AxisError))  # every Axis_Error bit fir
 
 TWO_PI = 2.0 * math.pi
 
+MAX_BUS_VOLTAGE_V = 100.0
+"""A Get_Bus_Voltage_Current reading above this is a corrupted frame (ODrive S1/Pro: 12-48 V)."""
+
 
 @dataclass(frozen=True)
 class AxisConfig:
@@ -196,6 +199,8 @@ class AxisLink:
         self.error = 0
         self.procedure_result = 0
         self.heartbeat_t_s = -math.inf
+        self.bus_voltage_v: float | None = None
+        self.bus_voltage_t_s = -math.inf
 
     # -- feedback ------------------------------------------------------------------------
     def on_heartbeat(self, values: tuple, now_s: float) -> bool:
@@ -235,6 +240,16 @@ class AxisLink:
         self.pos_rad = pos_rad
         self.vel_rad_s = vel_rev_s * self._rad_per_rev
         self.encoder_t_s = now_s
+        return True
+
+    def on_bus_voltage(self, values: tuple, now_s: float) -> bool:
+        """Get_Bus_Voltage_Current (an answer to a request, or cyclic where the ODrive is set to send
+        it): False (nothing applied) for a voltage that is not finite or outside 0-100 V."""
+        voltage, current = values
+        if not (0.0 <= voltage <= MAX_BUS_VOLTAGE_V and math.isfinite(current)):  # False for NaN too
+            return False
+        self.bus_voltage_v = float(voltage)
+        self.bus_voltage_t_s = now_s
         return True
 
     @property
@@ -286,4 +301,6 @@ class AxisLink:
         return data_frame(self.clear_id, self._clear.pack(0))
 
     def estop_frame(self) -> can.Message:
+        """ODrive's Estop (CANSimple cmd 0x002, no payload): the axis disarms and latches
+        ESTOP_REQUESTED until Clear_Errors."""
         return data_frame(self.estop_id, b"")

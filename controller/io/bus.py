@@ -10,7 +10,9 @@ counted under exactly one reason in ``dropped``:
   the DBC's length for that message;
 - ``unexpected_sender``: a data frame with an id that only a master sends (the DBC's
   ``Controller`` messages: Set_Input_Pos, Set_Axis_State, Estop, ... to one of our nodes). We
-  never hear our own frames, so another master is on the bus: logged once, with a warning;
+  never hear our own frames, so another master is on the bus: logged once, with a warning, and
+  counted per arbitration id in ``foreign`` (the loop makes it a latched FAULT,
+  :meth:`controller.loop.ControlLoop.tick`);
 - ``invalid``: the handler (:class:`~controller.io.axis.AxisLink`,
   :class:`~controller.io.sensors.SensorLink`) refused the values: NaN or infinite, out of range
   (an encoder reading faster or further than :class:`~controller.io.axis.FeedbackLimits` allow,
@@ -136,6 +138,7 @@ class BusIO:
         self.dropped: Counter[str] = Counter()
         self.bus_events: Counter[str] = Counter()
         self.received = 0
+        self.foreign: Counter[int] = Counter()  # frames from another master, by arbitration id
         self.bus_up = True
         self._warnings: Counter[str] = Counter()
         self._now_s = -math.inf
@@ -151,6 +154,8 @@ class BusIO:
         for axis in axes:
             self._listen(axis.heartbeat_id, contract.codec("Heartbeat"), axis.on_heartbeat)
             self._listen(axis.encoder_id, contract.codec("Get_Encoder_Estimates"), axis.on_encoder)
+            voltage = contract.codec("Get_Bus_Voltage_Current")
+            self._listen(arbitration_id(axis.config.node_id, voltage.cmd_id), voltage, axis.on_bus_voltage)
             for codec in contract.odrive.values():
                 if codec.name in contract.master_messages:
                     self._tx_table[arbitration_id(axis.config.node_id, codec.cmd_id)] = (codec.name, None, None)
@@ -283,6 +288,7 @@ class BusIO:
                 own = self._tx_table.get(arb)
                 if own is not None and not (msg.is_remote_frame or msg.is_extended_id):
                     dropped["unexpected_sender"] += 1
+                    self.foreign[arb] += 1
                     self._warn("unexpected_sender", "frame %#x (%s) on the bus is one only a master sends to our "
                                "node: another master is on the bus", arb, own[0], limit=1)
                 else:

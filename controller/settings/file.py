@@ -1,7 +1,11 @@
 """The deployment configuration: one TOML file for the whole leg, validated on load.
 
-Every section and every key is optional: what a file leaves out keeps its default, and
-``elegant-stepping config show [FILE]`` prints the effective configuration, every default
+On a simulated bus (``bus.interface = "virtual"``, or a ``bus.channel`` starting with ``vcan``)
+every section and every key is optional: what a file leaves out keeps its default (the
+simulated leg's). On a real bus the file must give the ``[bus]`` section and each axis's
+``node_id``, ``gear_ratio``, ``direction``, ``zero_offset_rev``, ``min_rad`` and ``max_rad``
+itself (:data:`REAL_BUS_REQUIRED`): the defaults are the simulated leg's, never a real leg's
+calibration. ``elegant-stepping config show [FILE]`` prints the effective configuration, every default
 included, as TOML (with each key's unit and allowed range in a comment). Units are SI and are
 part of every name.
 
@@ -17,7 +21,13 @@ section             what it sets
                     arming (:class:`~controller.io.axis.AxisConfig`)
 ``[drivers]``       what the drivers themselves are configured with: their command watchdog
                     timeout (:class:`DriverSettings`)
-``[weights]``       where the learned weights live, how often they are saved (:class:`WeightsSettings`)
+``[weights]``       where the learned weights live, how often they are saved, how many good
+                    generations are kept (:class:`WeightsSettings`)
+``[service]``       the daemon as a service: its control socket, the group allowed to command
+                    it, the records' rotation (:class:`ServiceSettings`)
+``[calibration]``   whether a person confirmed this leg's calibration after a bring-up that
+                    passed (:class:`CalibrationSettings`): a leg is never armed on a calibration
+                    nobody confirmed (:meth:`DeployConfig.armable_reason`)
 ``[cpg]``,          the model, field by field onto the dataclass of the same name in
 ``[gait]``, ...     :class:`~controller.config.ControllerConfig`: ``cpg``, ``gait``, ``geometry``,
                     ``learner``, ``encoder``, ``range_filter``, ``reflexes``, ``height``
@@ -40,13 +50,14 @@ node-silence timeout (``heartbeat_period_s * silence_periods``) between 5 contro
 :data:`MAX_SILENCE_TIMEOUT_S`; at least :data:`MIN_COMMANDS_PER_WATCHDOG` commands per driver
 watchdog timeout; a standard CAN bit rate with room for the loop's frames
 (:data:`MAX_BUS_LOAD`); the CPG's burst bounds; the encoder's cells within its range and its
-range within the range filter's; a leg long enough to reach the ground.
+range within the range filter's; a leg long enough to reach the ground; ``controller.auto_arm``
+only on a simulated bus; on a real bus, the keys of :data:`REAL_BUS_REQUIRED` given in the file.
 
 The sensor board's node id is not a setting: it is the bus contract's
 (:data:`protocol.SENSOR_BOARD_NODE_ID`).
 
-Relative weight paths are taken relative to the configuration file's folder, and stored
-absolute. :func:`to_toml` writes a configuration back (a small emitter for this schema: tables
+Relative paths (``[weights] path``, ``[service] control_socket``) are taken relative to the
+configuration file's folder, ``~`` expanded, and stored absolute. :func:`to_toml` writes a configuration back (a small emitter for this schema: tables
 of scalars and one array); :func:`write_config` writes a file and checks that it reads back to
 the same configuration.
 
@@ -166,13 +177,104 @@ class WeightsSettings:
     (else its ``.prev`` copy, else zeros) and saved while walking and at exit; ``""``: not
     persisted. ``~`` is expanded; a relative path is relative to the configuration file's folder.
     ``save_every_s``: saved after this much walking only if the weights changed.
+    ``generations``: how many good files are kept, the newest first (``FILE``, ``FILE.prev``,
+    ``FILE.prev2``, ...).
     """
 
     path: str = setting("", doc="the learned weights' .npz file; \"\" = not persisted", check=_check_weights_path)
     save_every_s: float = setting(10.0, "s", 0.1, 86400.0, "save after this much walking, if they changed")
+    generations: int = setting(3, "(files)", 1, 100, "good weight files kept: FILE, FILE.prev, FILE.prev2, ...")
 
     def __post_init__(self) -> None:
         check_settings(self, "weights")
+
+
+SIM_CHANNEL_PREFIX = "vcan"
+"""A ``bus.channel`` starting with this is a virtual SocketCAN link: a simulated leg."""
+
+UNIX_SOCKET_PATH_MAX = 107
+"""The longest path a Unix socket can be bound to on Linux [bytes] (``sun_path`` is 108 with the NUL)."""
+
+_GROUP_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.-]{0,31}\$?")
+
+
+def _check_socket_path(text: str) -> str | None:
+    if not text or text != text.strip() or "\x00" in text or "\n" in text:
+        return "must be a file path for the control socket (e.g. \"/run/elegant-stepping/control.sock\")"
+    if len(os.fsencode(text)) > UNIX_SOCKET_PATH_MAX:
+        return f"must be at most {UNIX_SOCKET_PATH_MAX} bytes long (a Unix socket's path)"
+    return None
+
+
+def _check_group(text: str) -> str | None:
+    if text and not _GROUP_NAME.fullmatch(text):
+        return "must be a group name (letters, digits, _ . -; at most 32) or \"\" for the daemon's own group"
+    return None
+
+
+def _check_one_line(text: str) -> str | None:
+    if "\n" in text or "\r" in text or "\x00" in text:
+        return "must be one line"
+    return None
+
+
+def _check_utc_time(text: str) -> str | None:
+    if not text:
+        return None
+    import datetime
+
+    try:
+        when = datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        return "must be an ISO 8601 time (e.g. \"2025-01-31T12:00:00Z\") or \"\""
+    if when.tzinfo is None or when.utcoffset() != datetime.timedelta(0):
+        return "must be a UTC time (ending in Z or +00:00)"
+    return None
+
+
+@dataclass(frozen=True)
+class ServiceSettings:
+    """The daemon as a service (systemd).
+
+    ``control_socket``: the Unix socket a person's ``elegant-stepping-leg status|arm|disarm|estop|
+    clear-faults`` talks to (mode 0660); the unit's ``RuntimeDirectory=elegant-stepping`` makes
+    ``/run/elegant-stepping``. ``~`` is expanded; a relative path is relative to the configuration
+    file's folder (like the weights'). ``control_group``: the group allowed to command the daemon
+    (the socket's group); ``""``: the daemon's own. ``records_max_bytes``, ``records_keep``: the
+    daemon's records file is rotated at this size, this many old ones kept.
+    """
+
+    control_socket: str = setting("/run/elegant-stepping/control.sock",
+                                  doc="the control socket (Unix); a relative path is beside this file",
+                                  check=_check_socket_path)
+    control_group: str = setting("", doc="the group allowed to command the daemon; \"\" = the daemon's own group",
+                                 check=_check_group)
+    records_max_bytes: int = setting(50_000_000, "bytes", 10_000, 10**12, "rotate the daemon's records at this size")
+    records_keep: int = setting(3, "(files)", 0, 1000, "rotated records files kept")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "service")
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """Whether a person confirmed this leg's calibration (``[axes.*]``: node ids, gear ratios,
+    directions, zero offsets, joint limits) after a bring-up that passed on it.
+
+    Written by ``elegant-stepping-leg config confirm FILE --bringup REPORT.json`` (which checks the
+    report), never assumed: a configuration that is not confirmed is never armed
+    (:meth:`DeployConfig.armable_reason`). ``confirmed_at``: when (UTC, ISO 8601); ``bringup``:
+    one line, the bring-up report's summary, its file and time.
+    """
+
+    confirmed: bool = setting(False, doc="a person confirmed the calibration after a bring-up that passed "
+                                         "(elegant-stepping-leg config confirm)")
+    confirmed_at: str = setting("", doc="when it was confirmed (UTC, ISO 8601)", check=_check_utc_time)
+    bringup: str = setting("", doc="the bring-up it was confirmed on: summary, report file, time",
+                           check=_check_one_line)
+
+    def __post_init__(self) -> None:
+        check_settings(self, "calibration")
 
 
 @dataclass(frozen=True)
@@ -184,17 +286,43 @@ class DeployConfig:
         controller: the controller, axes and model (:class:`~controller.config.ControllerConfig`).
         drivers: what the drivers are configured with (:class:`DriverSettings`).
         weights: where the learned weights live (:class:`WeightsSettings`).
+        service: the control socket and the records' rotation (:class:`ServiceSettings`).
+        calibration: whether a person confirmed the calibration (:class:`CalibrationSettings`).
+        source: the file it was read from, for messages (not compared).
     """
 
     bus: BusSettings = BusSettings()
     controller: ControllerConfig = field(default_factory=ControllerConfig)
     drivers: DriverSettings = DriverSettings()
     weights: WeightsSettings = WeightsSettings()
+    service: ServiceSettings = ServiceSettings()
+    calibration: CalibrationSettings = CalibrationSettings()
+    source: str = field(default="", compare=False)
+    """The file it was read from ("" if none): named in messages, not part of the configuration."""
 
     @property
     def weights_file(self) -> str | None:
         """The weights file, or None when the weights are not persisted."""
         return self.weights.path or None
+
+    @property
+    def simulated_bus(self) -> bool:
+        """True on a simulated bus: python-can's ``virtual`` interface or a ``vcan*`` channel."""
+        return is_simulated_bus(self.bus.interface, self.bus.channel)
+
+    def armable_reason(self) -> str | None:
+        """None if this configuration may be armed, else why not (one line): its calibration was
+        not confirmed by a person after a bring-up that passed (``config confirm``)."""
+        if self.calibration.confirmed:
+            return None
+        file = self.source or "FILE"
+        return (f"calibration not confirmed: run `elegant-stepping-leg bringup --config {file} --json report.json` "
+                f"on the leg, then `elegant-stepping-leg config confirm {file} --bringup report.json`")
+
+
+def is_simulated_bus(interface: str, channel: str) -> bool:
+    """A simulated bus: python-can's ``virtual`` interface, or a channel named ``vcan*``."""
+    return interface == "virtual" or str(channel).startswith(SIM_CHANNEL_PREFIX)
 
 
 class ConfigError(ValueError):
@@ -221,6 +349,8 @@ CONTROLLER = settings_of(ControllerConfig)  # its scalar fields; sensor_node_id 
 AXIS = settings_of(AxisConfig)  # all but the name, which is the section's
 DRIVERS = settings_of(DriverSettings)
 WEIGHTS = settings_of(WeightsSettings)
+SERVICE = settings_of(ServiceSettings)
+CALIBRATION = settings_of(CalibrationSettings)
 MODEL: dict[str, tuple[Setting, ...]] = {
     section: settings_of(type(getattr(_BASE, section)))
     for section in ("cpg", "gait", "geometry", "learner", "encoder", "range_filter", "reflexes", "height")
@@ -234,11 +364,20 @@ SECTIONS: dict[str, tuple[Setting, ...]] = {
     **{f"axes.{name}": AXIS for name in AXIS_NAMES},
     "drivers": DRIVERS,
     "weights": WEIGHTS,
+    "service": SERVICE,
+    "calibration": CALIBRATION,
     **MODEL,
 }
 """Every section, in the order ``config show`` writes them, with its settings."""
 
 _SETTING = {section: {s.key: s for s in settings} for section, settings in SECTIONS.items()}
+
+REAL_BUS_REQUIRED: dict[str, tuple[str, ...]] = {
+    "bus": ("interface", "channel", "bitrate"),
+    **{f"axes.{name}": ("node_id", "gear_ratio", "direction", "zero_offset_rev", "min_rad", "max_rad")
+       for name in AXIS_NAMES},
+}
+"""The keys a configuration for a real bus must give itself (no default is a real leg's)."""
 
 
 # ----------------------------------------------------------------------------- dict <-> config
@@ -261,19 +400,23 @@ def config_tables(config: DeployConfig) -> Tables:
         **{f"axes.{name}": _fields(ctl.axis(name), AXIS) for name in AXIS_NAMES},
         "drivers": _fields(config.drivers, DRIVERS),
         "weights": _fields(config.weights, WEIGHTS),
+        "service": _fields(config.service, SERVICE),
+        "calibration": _fields(config.calibration, CALIBRATION),
     }
     for section, settings in MODEL.items():
         tables[section] = _fields(getattr(ctl, section), settings)
     return tables
 
 
-def _build(tables: Tables) -> DeployConfig:
+def _build(tables: Tables, source: str = "") -> DeployConfig:
     base = ControllerConfig()
     axes = tuple(AxisConfig(name=name, **tables[f"axes.{name}"]) for name in AXIS_NAMES)
     model = {section: dataclasses.replace(getattr(base, section), **tables[section]) for section in MODEL}
     controller = dataclasses.replace(base, axes=axes, **tables["controller"], **model)
     return DeployConfig(bus=BusSettings(**tables["bus"]), controller=controller,
-                        drivers=DriverSettings(**tables["drivers"]), weights=WeightsSettings(**tables["weights"]))
+                        drivers=DriverSettings(**tables["drivers"]), weights=WeightsSettings(**tables["weights"]),
+                        service=ServiceSettings(**tables["service"]),
+                        calibration=CalibrationSettings(**tables["calibration"]), source=source)
 
 
 def _sections_given(data: Mapping[str, Any], problems: list[str]) -> Tables:
@@ -396,10 +539,12 @@ def validate_tables(data: Mapping[str, Any]) -> tuple[Tables, list[str]]:
     problems: list[str] = []
     tables = config_tables(DeployConfig())
     bad: set[str] = set()
+    given: set[str] = set()
     for section, values in _sections_given(data, problems).items():
         known = _SETTING[section]
         for key, value in values.items():
             dotted = f"{section}.{key}"
+            given.add(dotted)
             setting = known.get(key)
             if setting is None:
                 problems.append(f"{dotted}: unknown setting (known in [{section}]: {', '.join(known)})")
@@ -411,25 +556,71 @@ def validate_tables(data: Mapping[str, Any]) -> tuple[Tables, list[str]]:
             else:
                 tables[section][key] = parsed
     _cross_checks(tables, bad, problems)
+    _real_bus_checks(tables, bad, given, problems)
     return tables, problems
+
+
+def _bus_words(t: Tables) -> str:
+    return f"bus.interface = {_show(t['bus']['interface'])}, bus.channel = {_show(t['bus']['channel'])}"
+
+
+def _real_bus_checks(t: Tables, bad: set[str], given: set[str], problems: list[str]) -> None:
+    """On a real bus (not ``virtual``, channel not ``vcan*``): ``controller.auto_arm`` refused, and
+    every key of :data:`REAL_BUS_REQUIRED` given in the file (the defaults are the simulated leg's)."""
+    if "bus.interface" in bad or "bus.channel" in bad or is_simulated_bus(t["bus"]["interface"], t["bus"]["channel"]):
+        return
+    n_given = len({"bus.interface", "bus.channel"} & given)
+    defaults = ("", ", partly the defaults", ", the defaults")[2 - n_given]
+    if t["controller"].get("auto_arm") is True and "controller.auto_arm" not in bad:
+        problems.append(f"controller.auto_arm = true with {_bus_words(t)}{defaults and f' ({defaults[2:]})'}: a leg arms by itself only on a "
+                        f"simulated bus (bus.interface \"virtual\" or a bus.channel starting with "
+                        f"\"{SIM_CHANNEL_PREFIX}\"); on a real leg a person arms it (`elegant-stepping-leg arm`): "
+                        "set auto_arm = false")
+    for section, keys in REAL_BUS_REQUIRED.items():
+        missing = [k for k in keys if f"{section}.{k}" not in given]
+        if not missing:
+            continue
+        if section == "bus" and len(missing) == len(keys):
+            problems.append(f"[bus]: missing; without it the bus is {_bus_words(t)}, a real CAN bus: give [bus] "
+                            f"{', '.join(keys)} in the file (a simulated leg: interface \"virtual\" or a "
+                            f"\"{SIM_CHANNEL_PREFIX}*\" channel)")
+            continue
+        what = "every axis's" if section.startswith("axes.") else "its"
+        problems.append(f"[{section}] {', '.join(missing)}: not given; on a real CAN bus ({_bus_words(t)}{defaults}) "
+                        f"the file must give {what} {', '.join(keys)} itself (the defaults are the simulated leg's, "
+                        "never a real leg's calibration: docs/deploy.md, section 3)")
 
 
 def config_from_dict(data: Mapping[str, Any], source: str | os.PathLike = "<config>",
                      base_dir: str | os.PathLike | None = None) -> DeployConfig:
     """The configuration a parsed TOML document describes, defaults for what it leaves out.
-    ``base_dir``: relative weight paths are taken relative to it (and stored absolute).
+    ``base_dir``: relative paths (the weights', the control socket's) are taken relative to it
+    (and stored absolute).
     Raises :class:`ConfigError` with every problem found."""
     tables, problems = validate_tables(data)
     if not problems:
-        path = os.path.expanduser(tables["weights"]["path"])
-        if path and base_dir is not None and not os.path.isabs(path):
-            path = os.path.normpath(os.path.join(os.path.abspath(base_dir), path))
-        tables["weights"]["path"] = path
+        for section, key in (("weights", "path"), ("service", "control_socket")):
+            tables[section][key] = _beside(tables[section][key], base_dir)
+        socket_path = tables["service"]["control_socket"]
+        if len(os.fsencode(socket_path)) > UNIX_SOCKET_PATH_MAX:
+            problems.append(f"service.control_socket = {_show(socket_path)} (taken beside the file): "
+                            f"{len(os.fsencode(socket_path))} bytes, a Unix socket's path has at most "
+                            f"{UNIX_SOCKET_PATH_MAX}: give a shorter or absolute path")
+    if not problems:
         try:
-            return _build(tables)
+            return _build(tables, "" if source == "<config>" else str(source))
         except ValueError as exc:  # a check of the dataclasses this schema does not make itself (a bug)
             problems.append(str(exc))
     raise ConfigError(problems, source)
+
+
+def _beside(path: str, base_dir: str | os.PathLike | None) -> str:
+    """``path`` with ``~`` expanded and, if relative and ``base_dir`` is given, taken relative to
+    it (absolute); ``""`` stays ``""``."""
+    path = os.path.expanduser(path)
+    if path and base_dir is not None and not os.path.isabs(path):
+        path = os.path.normpath(os.path.join(os.path.abspath(base_dir), path))
+    return path
 
 
 _AT_LINE = re.compile(r"at line (\d+), column (\d+)")
@@ -528,12 +719,153 @@ def summary(config: DeployConfig) -> str:
                 f"{_num(a.vel_limit_rev_s)} rev/s)")
 
     weights = config.weights_file or "not persisted"
+    confirmed = (f"calibration confirmed {config.calibration.confirmed_at}".rstrip() if config.calibration.confirmed
+                 else "calibration NOT confirmed")
     return (f"{bus.interface} {bus.channel} at {bus.bitrate} bit/s; {', '.join(axis(a) for a in ctl.axes)}; "
-            f"{_num(ctl.rate_hz)} Hz, watchdog {_num(config.drivers.watchdog_timeout_s)} s; weights {weights}")
+            f"{_num(ctl.rate_hz)} Hz, watchdog {_num(config.drivers.watchdog_timeout_s)} s; weights {weights}; "
+            f"{confirmed}")
+
+
+# ----------------------------------------------------------------------------- confirming the calibration
+class ConfirmRefused(ValueError):
+    """``config confirm`` refused: one line saying why and what to do."""
+
+
+def bringup_report_problem(config: DeployConfig, report: Any, report_name: str) -> str | None:
+    """Why the bring-up report ``report`` (its JSON, :meth:`controller.bringup.procedure.BringupReport.to_dict`)
+    cannot confirm ``config``'s calibration, or None: it must be a bring-up report that passed, with
+    its moves done (not ``--no-move``), for the same axes on the same node ids."""
+    keys = ("channel", "passed", "summary", "items", "axes")
+    if not isinstance(report, dict) or any(k not in report for k in keys) or not isinstance(report["axes"], dict) \
+            or not isinstance(report["items"], list):
+        return (f"{report_name} is not a bring-up report (a JSON object with {', '.join(keys)}): write one with "
+                f"`elegant-stepping-leg bringup --config FILE --json {report_name}`")
+    if report["passed"] is not True:
+        return (f"{report_name}: the bring-up did not pass ({report['summary']}): fix what failed, run it again, "
+                "then confirm")
+    ours = {a.name: a.node_id for a in config.controller.axes}
+    theirs = {name: (info.get("node_id") if isinstance(info, dict) else None) for name, info in report["axes"].items()}
+    if ours != theirs:
+        def show(d: dict) -> str:
+            return ", ".join(f"{n} node {i}" for n, i in sorted(d.items()))
+        return (f"{report_name} is a bring-up of {show(theirs) or 'no axis'}, this configuration has {show(ours)}: "
+                "run the bring-up with this configuration (--config FILE)")
+    items = {i.get("name"): i.get("status") for i in report["items"] if isinstance(i, dict)}
+    for name in ours:
+        for item in (f"{name}: position", f"{name}: move", f"{name}: move back"):
+            if items.get(item) != "PASS":
+                status = items.get(item, "absent")
+                return (f"{report_name}: item '{item}' is {status}, not PASS: a calibration is confirmed on a bring-up "
+                        "that checked every axis's position and moved it (without --no-move)")
+    return None
+
+
+def _calibration_text(cal: CalibrationSettings) -> dict[str, str]:
+    return {s.key: toml_value(getattr(cal, s.key)) for s in CALIBRATION}
+
+
+_HEADER = re.compile(r"^\s*\[\s*(?P<name>[^\]\s]+)\s*\]\s*(#.*)?$")
+_HEADER_ANY = re.compile(r"^\s*\[")
+
+
+def with_calibration(text: str, cal: CalibrationSettings) -> str | None:
+    """``text`` (a configuration file) with its ``[calibration]`` keys set to ``cal``'s, every other
+    line (comments included) as it was; None if the file is not laid out simply enough to edit by
+    lines (the caller then writes the whole configuration)."""
+    lines = text.splitlines()
+    values = _calibration_text(cal)
+    start = next((i for i, line in enumerate(lines) if (m := _HEADER.match(line)) and m["name"] == "calibration"), None)
+    if start is None:
+        block = ["", "[calibration]"] + [f"{k} = {v}" for k, v in values.items()]
+        while lines and not lines[-1].strip():
+            lines.pop()
+        return "\n".join(lines + block) + "\n"
+    end = next((i for i in range(start + 1, len(lines)) if _HEADER_ANY.match(lines[i])), len(lines))
+    done: set[str] = set()
+    for i in range(start + 1, end):
+        m = re.match(r"^(\s*)([A-Za-z_]+)\s*=", lines[i])
+        if m and m[2] in values:
+            if m[2] in done:
+                return None
+            lines[i] = f"{m[1]}{m[2]} = {values[m[2]]}"
+            done.add(m[2])
+    extra = [f"{k} = {v}" for k, v in values.items() if k not in done]
+    return "\n".join(lines[:start + 1] + extra + lines[start + 1:]) + "\n"
+
+
+def confirm_calibration(path: str | os.PathLike, report_path: str | os.PathLike,
+                        now: "datetime.datetime | None" = None) -> tuple[DeployConfig, Path, bool]:
+    """Confirm the calibration in the configuration file ``path`` on the bring-up report
+    ``report_path`` (:func:`bringup_report_problem`): ``[calibration] confirmed = true``,
+    ``confirmed_at`` (UTC, ISO 8601), ``bringup`` (the report's summary, file and time).
+
+    The file is copied to ``FILE.bak`` first, then written atomically (its mode and owner kept):
+    the ``[calibration]`` lines edited in place (every comment kept) where the file allows it,
+    else the whole configuration by :func:`to_toml` (the comments then are only in ``FILE.bak``).
+    Returns (the configuration written, the backup, whether the comments were kept). Raises
+    :class:`ConfirmRefused` (one line) or :class:`ConfigError` (the file's own problems)."""
+    import datetime
+    import json
+    import shutil
+
+    path, report_path = Path(path), Path(report_path)
+    config = load_config(path)
+    try:
+        raw = report_path.read_text(encoding="utf-8")
+        report_stat = report_path.stat()
+    except OSError as exc:
+        raise ConfirmRefused(f"cannot read the bring-up report {report_path}: {exc.strerror or exc} (run "
+                             f"`elegant-stepping-leg bringup --config {path} --json {report_path}` on the leg "
+                             "first)") from None
+    try:
+        report = json.loads(raw)
+    except ValueError:
+        report = None
+    problem = bringup_report_problem(config, report, str(report_path))
+    if problem:
+        raise ConfirmRefused(problem)
+    if report_stat.st_mtime < path.stat().st_mtime:
+        raise ConfirmRefused(f"{report_path} is older than {path}: the configuration changed after that bring-up; "
+                             f"run `elegant-stepping-leg bringup --config {path} --json {report_path}` again")
+    now = now or datetime.datetime.now(datetime.timezone.utc)
+    stamp = now.astimezone(datetime.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z")
+    report_time = datetime.datetime.fromtimestamp(report_stat.st_mtime, datetime.timezone.utc).replace(
+        microsecond=0).isoformat().replace("+00:00", "Z")
+    summary_text = " ".join(str(report["summary"]).split())
+    cal = CalibrationSettings(confirmed=True, confirmed_at=stamp,
+                              bringup=f"{summary_text} on {' '.join(str(report['channel']).split())}: "
+                                      f"{report_path.resolve()} ({report_time})")
+    expected = dataclasses.replace(config, calibration=cal)
+    text = path.read_text(encoding="utf-8")
+    edited = with_calibration(text, cal)
+    kept = False
+    if edited is not None:
+        try:
+            kept = config_from_toml(edited, path, base_dir=path.parent) == expected
+        except ConfigError:
+            kept = False
+    if not kept:
+        edited = to_toml(expected, header=f"elegant-stepping configuration, rewritten by `elegant-stepping-leg config "
+                                          f"confirm` at {stamp}\n(the file before, with its comments: {path.name}.bak)")
+        if config_from_toml(edited, path) != expected:
+            raise ConfigError(["does not read back to the configuration written (a bug in the emitter)"], path)
+    backup = path.with_name(path.name + ".bak")
+    shutil.copy2(path, backup)
+    before = path.stat()
+    write_text_atomic(path, edited)
+    os.chmod(path, before.st_mode & 0o7777)
+    try:
+        os.chown(path, before.st_uid, before.st_gid)
+    except OSError:  # not ours to give away (not root): the file stays ours, with the same mode
+        pass
+    log.warning("calibration of %s confirmed on %s (%s)", path, report_path, summary_text)
+    return expected, backup, kept
 
 
 __all__ = [
     "BusSettings", "DriverSettings", "WeightsSettings", "DeployConfig", "ConfigError", "Setting", "SECTIONS",
     "load_config", "config_from_dict", "config_from_toml", "validate_tables", "config_tables", "check_config",
-    "to_toml", "toml_string", "toml_value", "write_config", "summary",
+    "to_toml", "toml_string", "toml_value", "write_config", "summary", "ServiceSettings", "CalibrationSettings",
+    "REAL_BUS_REQUIRED", "is_simulated_bus", "ConfirmRefused", "bringup_report_problem", "with_calibration",
+    "confirm_calibration",
 ]

@@ -13,17 +13,24 @@ The format (schema version :data:`SCHEMA_VERSION` = 2) is an uncompressed ``.npz
   of (schema version, shape, dtype, cell width, the weight bytes).
 
 Saving (:func:`save_weights`) writes a temporary file in the same folder, flushes and fsyncs it,
-keeps the current file (if it is itself valid) as ``<name>.prev`` (hard link to a temporary name,
-then rename, so the main path always names a complete file), renames the temporary file over
-the main path and fsyncs the folder. A process killed at any instant leaves the main path naming
+rotates the older good copies (``generations`` files in all, default 2: ``<name>``, ``<name>.prev``,
+then ``<name>.prev2``, ``<name>.prev3``, ...; each older copy moves one place down if it is itself a
+valid file, the oldest drops out), keeps the current file (if it is itself valid) as ``<name>.prev``
+(hard link to a temporary name, then rename, so the main path always names a complete file),
+renames the temporary file over the main path and fsyncs the folder. A process killed at any instant leaves the main path naming
 the old file or the new one, never half of one. Stale temporary files (``<name>.<pid>.*.tmp``)
 of processes that no longer exist are removed by the next save; loading never writes.
 
 Loading (:func:`load_weights`) raises :class:`WeightsError` naming the file and the reason:
 missing, not an ``.npz``, truncated or damaged, an array missing, an unknown schema version, a
 checksum mismatch, the wrong shape or cell width for this controller, NaN or infinity.
-:func:`load_weights_or_fallback` tries the file, then ``<name>.prev``, then starts from zeros,
-logging each failure; it never returns garbage.
+:func:`load_weights_or_fallback` tries the generations in order (the file, ``<name>.prev``,
+``<name>.prev2``, ...), then starts from zeros, logging each failure; it never returns garbage.
+
+:func:`resume_weights` is the daemon's loader: the same order, and a file that is intact but does
+not fit this controller (:class:`IncompatibleWeights`: another shape or cell width, i.e. another
+configuration's weights) is never left where a save could rotate it away or write over it: it is
+renamed aside to ``<name>.incompatible-<UTC timestamp>`` (:func:`set_aside`) and reported.
 
 Legacy files (schema 1: exactly ``weights`` and ``cell_width_m``, written before schema
 versions existed, e.g. old ``learn`` output folders) are still loaded, with a logged warning:
@@ -43,6 +50,7 @@ import shutil
 import struct
 import tempfile
 import zipfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -61,10 +69,43 @@ class WeightsError(ValueError):
     """A weights file that is missing, corrupt or does not fit this controller."""
 
 
+class IncompatibleWeights(WeightsError):
+    """An intact weights file that does not fit this controller (shape or cell width)."""
+
+
 def prev_path(path: str | Path) -> Path:
     """Where the previous good copy of ``path`` is kept: ``<name>.prev`` beside it."""
+    return generation_path(path, 1)
+
+
+def generation_path(path: str | Path, k: int) -> Path:
+    """The ``k``-th good copy of ``path``: 0 the file itself, 1 ``<name>.prev``, k >= 2 ``<name>.prev<k>``."""
     path = Path(path)
-    return path.with_name(path.name + ".prev")
+    if k < 0:
+        raise ValueError(f"generation {k} < 0")
+    return path if k == 0 else path.with_name(path.name + (".prev" if k == 1 else f".prev{k}"))
+
+
+def generation_name(k: int) -> str:
+    """The source name of the ``k``-th generation: ``file``, ``prev``, ``prev2``, ..."""
+    return "file" if k == 0 else ("prev" if k == 1 else f"prev{k}")
+
+
+def set_aside(path: str | Path, now: float | None = None) -> Path:
+    """Rename ``path`` to ``<name>.incompatible-<UTC timestamp>`` beside it (never over another
+    file: ``-1``, ``-2``, ... if that name is taken) and fsync the folder; the new path."""
+    import time
+
+    path = Path(path)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(time.time() if now is None else now))
+    target = path.with_name(f"{path.name}.incompatible-{stamp}")
+    n = 0
+    while target.exists():
+        n += 1
+        target = path.with_name(f"{path.name}.incompatible-{stamp}-{n}")
+    os.rename(path, target)
+    _fsync_dir(path.parent)
+    return target
 
 
 def checksum(weights: np.ndarray, cell_width_m: float, schema_version: int = SCHEMA_VERSION) -> str:
@@ -140,9 +181,30 @@ def _keep_previous(path: Path) -> None:
         raise
 
 
-def save_weights(path: str | Path, weights: np.ndarray, cell_width_m: float) -> None:
+def _is_valid(path: Path) -> bool:
+    try:
+        read_weights(path)
+    except WeightsError:
+        return False
+    return True
+
+
+def _rotate_older(path: Path, generations: int) -> None:
+    """Move each valid ``<name>.prev<k-1>`` to ``<name>.prev<k>``, oldest first (k from
+    ``generations - 1`` down to 2); an invalid one stays and is overwritten by the next move."""
+    for k in range(generations - 1, 1, -1):
+        src = generation_path(path, k - 1)
+        if src.exists() and _is_valid(src):
+            os.replace(src, generation_path(path, k))
+
+
+def save_weights(path: str | Path, weights: np.ndarray, cell_width_m: float, generations: int = 2) -> None:
     """Write ``weights`` [s] (shape ``(n_cells,)`` or ``(n_contexts, n_cells)``, finite) and the
-    cell width [m] to ``path`` atomically, keeping the previous good file as ``<name>.prev``."""
+    cell width [m] to ``path`` atomically, keeping the previous good files: ``generations`` in all
+    (default 2: the file and ``<name>.prev``; 3 adds ``<name>.prev2``, ...; 1 keeps none)."""
+    generations = int(generations)
+    if generations < 1:
+        raise ValueError(f"generations must be at least 1, got {generations}")
     weights = np.array(weights, dtype=_DTYPE)
     if weights.ndim not in (1, 2) or weights.size == 0:
         raise ValueError(f"weights must be a non-empty 1-D or 2-D array, got shape {weights.shape}")
@@ -163,7 +225,9 @@ def save_weights(path: str | Path, weights: np.ndarray, cell_width_m: float) -> 
                      checksum=np.array(checksum(weights, cell_width_m), dtype="U64"))
             f.flush()
             os.fsync(f.fileno())
-        _keep_previous(path)
+        if generations >= 2:
+            _rotate_older(path, generations)
+            _keep_previous(path)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -249,38 +313,93 @@ def load_weights(path: str | Path, n_cells: int, cell_width_m: float, n_contexts
     path = Path(path)
     weights, width = read_weights(path)
     if n_contexts is None and weights.shape != (n_cells,):
-        raise WeightsError(f"{path}: {weights.shape} weights, this controller has {n_cells} cells")
+        raise IncompatibleWeights(f"{path}: {weights.shape} weights, this controller has {n_cells} cells")
     if n_contexts is not None and weights.shape != (n_contexts, n_cells):
-        raise WeightsError(f"{path}: {weights.shape} weights, this controller has {n_contexts} contexts x "
-                           f"{n_cells} cells")
+        raise IncompatibleWeights(f"{path}: {weights.shape} weights, this controller has {n_contexts} contexts x "
+                                  f"{n_cells} cells")
     if not np.isclose(width, cell_width_m):
-        raise WeightsError(f"{path}: cell width {width} m, this controller uses {cell_width_m} m")
+        raise IncompatibleWeights(f"{path}: cell width {width} m, this controller uses {cell_width_m} m")
     return weights
 
 
 def load_weights_or_fallback(path: str | Path, n_cells: int, cell_width_m: float,
-                             n_contexts: int | None = None) -> tuple[np.ndarray, str]:
-    """``(weights, source)``: the weights in ``path`` (source ``"file"``), else in ``<name>.prev``
-    (``"prev"``), else zeros of the controller's shape (``"zeros"``). A file that exists but cannot
-    be used is logged as an error, a missing one at info level; starting from zeros is a warning."""
+                             n_contexts: int | None = None, generations: int = 2) -> tuple[np.ndarray, str]:
+    """``(weights, source)``: the first of the ``generations`` good copies that loads, in order (the
+    file ``"file"``, ``<name>.prev`` ``"prev"``, ``<name>.prev2`` ``"prev2"``, ...), else zeros of the
+    controller's shape (``"zeros"``). A file that exists but cannot be used is logged as an error, a
+    missing one at info level; starting from zeros is a warning. Never writes."""
+    r = resume_weights(path, n_cells, cell_width_m, n_contexts, generations, set_aside_incompatible=False)
+    return r.weights, r.source
+
+
+@dataclass
+class Resumed:
+    """What :func:`resume_weights` found.
+
+    Attributes:
+        weights: the weights to start from (zeros of the controller's shape when no copy loaded).
+        source: ``"file"``, ``"prev"``, ``"prev2"``, ... or ``"zeros"``.
+        path: the file they came from (None for zeros).
+        set_aside: ``(where it was, where it is now, why)`` for each incompatible file renamed aside.
+        reasons: why each generation before the one used (or every one, for zeros) was not used.
+    """
+
+    weights: np.ndarray
+    source: str
+    path: Path | None = None
+    set_aside: list[tuple[str, str, str]] = field(default_factory=list)
+    reasons: list[str] = field(default_factory=list)
+
+
+def resume_weights(path: str | Path, n_cells: int, cell_width_m: float, n_contexts: int | None = None,
+                   generations: int = 3, set_aside_incompatible: bool = True) -> Resumed:
+    """The daemon's loader: every generation of ``path`` is read in order (the file, ``.prev``,
+    ``.prev2``, ... ``generations`` in all); the first that loads is used. With
+    ``set_aside_incompatible``, each generation that is intact but does not fit this controller
+    (:class:`IncompatibleWeights`) is renamed aside (:func:`set_aside`), logged at ERROR, and
+    listed, so no later save rotates it away or writes over it; then, if none fits, the run
+    starts from zeros with nothing left at the generations' names to write over. A damaged file
+    is logged at ERROR and left where it is (a save writes over a damaged file only)."""
     shape = (n_cells,) if n_contexts is None else (n_contexts, n_cells)
-    reasons = []
-    for candidate, source in ((Path(path), "file"), (prev_path(path), "prev")):
+    out = Resumed(np.zeros(shape), "zeros")
+    for k in range(max(1, int(generations))):
+        candidate = generation_path(path, k)
         try:
             weights = load_weights(candidate, n_cells, cell_width_m, n_contexts)
+        except IncompatibleWeights as exc:
+            if set_aside_incompatible:
+                try:
+                    moved = set_aside(candidate)
+                except OSError as err:
+                    log.error("weights: %s; and it could not be renamed aside (%s)", exc, err)
+                    raise WeightsError(f"{exc}; it could not be renamed aside ({err}), so the daemon will not "
+                                       f"run where it could write over it") from None
+                log.error("weights: %s: another configuration's weights, kept aside as %s", exc, moved)
+                out.set_aside.append((str(candidate), str(moved), str(exc)))
+            else:
+                log.error("weights: %s", exc)
+            if out.path is None:
+                out.reasons.append(str(exc))
+            continue
         except WeightsError as exc:
-            reasons.append(str(exc))
+            if out.path is None:
+                out.reasons.append(str(exc))
             if candidate.exists():
                 log.error("weights: %s", exc)
             else:
                 log.info("weights: %s", exc)
             continue
-        if source == "prev":
-            log.warning("weights: loaded the previous good copy %s", candidate)
-        return weights, source
-    log.warning("weights: starting from zeros %s (%s)", shape, "; ".join(reasons))
-    return np.zeros(shape), "zeros"
+        if out.path is None:
+            out.weights, out.source, out.path = weights, generation_name(k), candidate
+            if k > 0:
+                log.warning("weights: loaded the previous good copy %s", candidate)
+            if not set_aside_incompatible:
+                break  # nothing more to look for
+    if out.path is None:
+        log.warning("weights: starting from zeros %s (%s)", shape, "; ".join(out.reasons))
+    return out
 
 
-__all__ = ["SCHEMA_VERSION", "WeightsError", "checksum", "load_weights", "load_weights_or_fallback", "prev_path",
-           "read_weights", "save_weights", "stale_temporaries"]
+__all__ = ["SCHEMA_VERSION", "IncompatibleWeights", "Resumed", "WeightsError", "checksum", "generation_name",
+           "generation_path", "load_weights", "load_weights_or_fallback", "prev_path", "read_weights", "resume_weights",
+           "save_weights", "set_aside", "stale_temporaries"]

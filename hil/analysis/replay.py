@@ -18,6 +18,7 @@ switch to TOML has a ``controller.json`` there instead, still read (with a warni
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -86,7 +87,11 @@ def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, ti
     """Replay ``log``. With ``tick_times`` (the live loop's clock at each tick, from
     ``controller.ticks``), ``tick_counts`` (frames it read in each tick) and ``clock_offset_s``
     (log timestamp minus that clock), the loop ticks when the live one did and reads in each
-    tick exactly the frames it read; otherwise the ticks are recovered from the log."""
+    tick exactly the frames it read; otherwise the ticks are recovered from the log.
+
+    The replayed controller arms by itself (``auto_arm``) as soon as every node is heard: a log
+    holds no operator's command, and sessions recorded before the lifecycle existed armed so."""
+    config = dataclasses.replace(config, auto_arm=True)
     frames = [m for m in can.LogReader(str(log)) if not m.is_error_frame]
     frames.sort(key=lambda m: m.timestamp)
     hip_id = next(a.node_id for a in config.axes if a.name == "hip")

@@ -90,17 +90,19 @@ class NotifyListener:
         with self.lock:
             return list(self.messages)
 
-    def first(self, key: str, value: str | None = None) -> NotifyMessage | None:
-        return next((m for m in self.snapshot() if m.has(key, value)), None)
+    def first(self, key: str, value: str | None = None, pid: int | None = None) -> NotifyMessage | None:
+        """The first message with ``key`` (= ``value``), from ``pid`` if given."""
+        return next((m for m in self.snapshot() if m.has(key, value) and (pid is None or m.pid == pid)), None)
 
-    def wait_for(self, key: str, value: str | None, timeout_s: float, alive=lambda: True) -> NotifyMessage | None:
-        """The first message with ``key`` (= ``value``), waiting up to ``timeout_s``; None if it
-        did not come, or ``alive()`` turned False first."""
+    def wait_for(self, key: str, value: str | None, timeout_s: float, alive=lambda: True,
+                 pid: int | None = None) -> NotifyMessage | None:
+        """The first message with ``key`` (= ``value``), from ``pid`` if given, waiting up to
+        ``timeout_s``; None if it did not come, or ``alive()`` turned False first."""
         deadline = time.monotonic() + timeout_s
         while True:
-            found = self.first(key, value)
+            found = self.first(key, value, pid)
             if found is not None or time.monotonic() > deadline or not alive():
-                return found if found is not None else self.first(key, value)
+                return found if found is not None else self.first(key, value, pid)
             time.sleep(0.05)
 
     def stop(self) -> None:

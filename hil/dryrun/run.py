@@ -39,6 +39,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -128,29 +129,35 @@ class Deployment:
 
 
 def platform_config(path: Path, folder: Path, channel: str) -> tuple[Path, list[str]]:
-    """The simulated leg's config as this platform runs it: ``path`` itself natively; inside
-    User-Mode Linux a copy in ``folder`` with the node-silence timeout of a ``hil`` session there
-    (:attr:`hil.profile.Profile.min_silence_periods`). Checks that its bus is SocketCAN ``channel``.
-    Returns the file and what was changed."""
+    """The simulated leg's config as the dry run runs it: a copy of ``path`` in ``folder`` in which
+    the daemon waits for a person (``auto_arm`` off, as on a real leg: the dry run plays the person,
+    :mod:`hil.dryrun.operator`), with its control socket in ``folder``, and inside User-Mode Linux
+    the node-silence timeout of a ``hil`` session there (:attr:`hil.profile.Profile.min_silence_periods`).
+    Checks that its bus is SocketCAN ``channel``. Returns the file and what was changed."""
     from controller.settings.file import load_config, write_config
     from hil.profile import current
 
     profile = current()
-
     config = load_config(path)
     if (config.bus.interface, config.bus.channel) != ("socketcan", channel):
         raise ValueError(f"{path}: the simulated leg's config must be on socketcan {channel}, "
                          f"not {config.bus.interface} {config.bus.channel}")
     ctl = config.controller
+    socket = folder / "control.sock"
+    if len(str(socket).encode()) > 100:  # a Unix socket's path has at most 107 bytes
+        socket = Path(tempfile.gettempdir()) / f"es-dryrun-{os.getpid()}.sock"
+    swaps = [f"auto_arm {str(ctl.auto_arm).lower()} -> false (the dry run plays the person who arms the leg)",
+             f"control_socket {config.service.control_socket} -> {socket}"]
     least = profile.min_silence_periods
-    if least is None or ctl.silence_periods >= least:
-        return path, []
-    ctl = profile.controller_config(ctl)
-    copy = folder / f"{path.stem}-uml.toml"
-    write_config(copy, dataclasses.replace(config, controller=ctl),
-                 header=f"{path} as the dry run runs it inside User-Mode Linux (hil.dryrun.run)")
-    return copy, [f"inside User-Mode Linux: silence_periods {config.controller.silence_periods:g} -> "
-                  f"{least:g} (as every hil session there), in a copy {copy.name}"]
+    if least is not None and ctl.silence_periods < least:
+        swaps.append(f"inside User-Mode Linux: silence_periods {ctl.silence_periods:g} -> {least:g} "
+                     "(as every hil session there)")
+        ctl = profile.controller_config(ctl)
+    copy = folder / f"{path.stem}-dryrun.toml"
+    write_config(copy, dataclasses.replace(config, controller=dataclasses.replace(ctl, auto_arm=False),
+                                           service=dataclasses.replace(config.service, control_socket=str(socket))),
+                 header=f"{path} as the dry run runs it (hil.dryrun.run)")
+    return copy, [f"{s}, in a copy {copy.name}" for s in swaps]
 
 
 # -- the checklist ------------------------------------------------------------------------------
@@ -168,9 +175,13 @@ def final_record(log_text: str) -> dict[str, Any]:
 
 def checklist(*, messages: list, pid: int, t_start: float, t_term: float | None, rc: int | None,
               final: dict[str, Any], status_running: dict[str, Any], bye: dict[str, Any],
-              dep: Deployment) -> list[dict[str, Any]]:
-    """The dry run's checks, in order: ``{"check", "ok", "detail"}`` each."""
+              dep: Deployment, pids: list[int] | None = None) -> list[dict[str, Any]]:
+    """The dry run's checks of the last daemon started (``pid``; ``pids``: every daemon the run
+    started, each allowed to notify), in order: ``{"check", "ok", "detail"}`` each."""
     items: list[dict[str, Any]] = []
+    started = set(pids or [pid])
+    every = messages
+    messages = [m for m in every if m.pid == pid]
 
     def add(check: str, ok: bool, detail: str) -> None:
         items.append({"check": check, "ok": bool(ok), "detail": detail})
@@ -180,9 +191,9 @@ def checklist(*, messages: list, pid: int, t_start: float, t_term: float | None,
         "not seen" if ready is None else
         f"{ready.t_s - t_start:.1f} s after start (TimeoutStartSec {dep.start_timeout_s:g} s), from pid {ready.pid}: "
         f"{ready.fields.get('STATUS', '')!r}")
-    foreign = [m.pid for m in messages if m.pid != pid]
+    foreign = [m.pid for m in every if m.pid not in started]
     add("NotifyAccess=main", bool(messages) and not foreign,
-        f"{len(messages)} notifications, all from the daemon's pid {pid}" if not foreign else
+        f"{len(every)} notifications, all from the daemons' main pids {sorted(started)}" if not foreign else
         f"from other pids: {sorted(set(foreign))[:5]}")
     t_stop = next((m.t_s for m in messages if m.has("STOPPING", "1")), t_term if t_term is not None else math.inf)
     pings = [m.t_s for m in messages if m.has("WATCHDOG", "1") and m.t_s <= t_stop]
@@ -200,8 +211,9 @@ def checklist(*, messages: list, pid: int, t_start: float, t_term: float | None,
         f"{period:g} s); median gap {sorted(gaps)[len(gaps) // 2] if gaps else math.nan:.3f} s, "
         f"longest {max_gap:.3f} s (WatchdogSec {dep.watchdog_s:g} s), over {span:.1f} s")
     statuses = [m.fields["STATUS"] for m in messages if "STATUS" in m.fields]
-    walked = "walking" in statuses and (final.get("steps") or 0) > 0 and final.get("phase") == "walk"
-    add("walked", walked, f"STATUS walking {'seen' if 'walking' in statuses else 'not seen'}, "
+    seen = any(s.endswith("walking") for s in statuses)
+    walked = seen and (final.get("steps") or 0) > 0 and final.get("phase") == "walk"
+    add("walked", walked, f"STATUS walking {'seen' if seen else 'not seen'}, "
         f"{final.get('steps')} steps, phase at exit {final.get('phase')!r}"
         + (f", fault: {final.get('fault_cause')}" if final.get("fault_cause") else ""))
     running = {n: a.get("state") for n, a in status_running.get("axes", {}).items()}
@@ -229,6 +241,7 @@ def run_dryrun(*, unit: str | Path = UNIT, config: str | Path | None = None, sec
     """The dry run on a vcan ``channel`` that is up (see the module docstring); writes
     ``out/dryrun.json``, ``out/controller.log``, ``out/firmware.log``; returns the report."""
     from hil.dryrun.notify_listener import NotifyListener
+    from hil.dryrun.operator import Operator, axes_text
     from hil.profile import current
     from hil.session.outcome import HilError
     from hil.session.run import session_envs, stop_session
@@ -256,12 +269,16 @@ def run_dryrun(*, unit: str | Path = UNIT, config: str | Path | None = None, sec
         stdout=fw_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=fw_env)
     listener = NotifyListener()
     daemon: subprocess.Popen | None = None
+    pids: list[int] = []
     client = None
     status_running: dict[str, Any] = {}
     bye: dict[str, Any] = {}
     error = None
     t_start = t_term = None
     rc = None
+    from controller.settings.file import load_config
+
+    operator = Operator(load_config(config).service.control_socket, say)
     try:
         client = ScenarioClient(addr, 120.0, lambda: firmware.poll() is None)
         say("firmware-sim up; starting the unit's command line: " + " ".join(dep.argv))
@@ -269,26 +286,83 @@ def run_dryrun(*, unit: str | Path = UNIT, config: str | Path | None = None, sec
         daemon_env = {**env, **dep.env, "NOTIFY_SOCKET": listener.address,
                       "WATCHDOG_USEC": str(int(round(dep.watchdog_s * 1e6)))}
         daemon_env.pop("WATCHDOG_PID", None)
-        t_start = time.monotonic()
-        daemon = subprocess.Popen(["/bin/sh", "-c", WATCHDOG_PID_SHIM, "sh", *dep.argv], stdout=ctl_log,
-                                  stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=daemon_env)
         try:  # this harness yields to the two real-time processes
             os.nice(10)
         except OSError:
             pass
+
+        def start() -> tuple[subprocess.Popen, float, Any]:
+            """The unit's command line, as systemd starts it; (process, start time, its READY)."""
+            t0 = time.monotonic()
+            proc = subprocess.Popen(["/bin/sh", "-c", WATCHDOG_PID_SHIM, "sh", *dep.argv], stdout=ctl_log,
+                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=daemon_env)
+            pids.append(proc.pid)
+            ready = listener.wait_for("READY", "1", dep.start_timeout_s,
+                                      lambda: proc.poll() is None and firmware.poll() is None, pid=proc.pid)
+            if ready is None:
+                raise HilError(f"no READY=1 within TimeoutStartSec ({dep.start_timeout_s:g} s)"
+                               + ("" if proc.poll() is None else f"; the daemon exited with {proc.poll()}"))
+            return proc, t0, ready
+
+        def stop(proc: subprocess.Popen) -> int | None:
+            """SIGTERM, as ``systemctl stop``; SIGKILL after TimeoutStopSec. The exit code (None: killed)."""
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+            try:
+                return proc.wait(dep.stop_timeout_s)
+            except subprocess.TimeoutExpired:
+                proc.kill()  # what systemd does after TimeoutStopSec (SIGKILL)
+                proc.wait(10)
+                return None
+
+        # the first start: inactive, then a person arms it, walks, presses the e-stop
+        daemon, t_start, ready = start()
         alive = lambda: daemon.poll() is None and firmware.poll() is None  # noqa: E731
-        ready = listener.wait_for("READY", "1", dep.start_timeout_s, alive)
-        if ready is None:
-            raise HilError(f"no READY=1 within TimeoutStartSec ({dep.start_timeout_s:g} s)"
-                           + ("" if alive() else f"; the daemon exited with {daemon.poll()}"))
-        say(f"READY after {ready.t_s - t_start:.1f} s; running {seconds:g} s")
-        deadline = ready.t_s + seconds
+        say(f"READY after {ready.t_s - t_start:.1f} s (inactive)")
+        st = operator.status()
+        operator.check("status while inactive", st.get("lifecycle") == "inactive" and set(st.get("axes", {})) ==
+                       {"hip", "knee"}, f"lifecycle {st.get('lifecycle')}, phase {st.get('phase')}: {axes_text(st)}")
+        code, _, err = operator.verb("arm")
+        st = operator.wait_for("walk", 30.0, alive)
+        operator.check("arm walks the leg", code == 0 and st.get("phase") == "walk",
+                       f"arm exit {code}{': ' + err.strip() if code else ''}; then phase {st.get('phase')}: {axes_text(st)}")
+        deadline = time.monotonic() + seconds
         while time.monotonic() < deadline and alive():
             time.sleep(0.1)
         if not alive():
             raise HilError(f"a process ended early (daemon {daemon.poll()}, firmware-sim {firmware.poll()})")
         status_running = client.request({"op": "status"}, expect="status")
-    except (HilError, OSError, ValueError) as exc:
+        code, _, err = operator.verb("estop")
+        st = operator.wait_for("fault", 10.0, alive)
+        time.sleep(0.3)
+        legs = {n: a.get("state") for n, a in client.request({"op": "status"}, expect="status").get("axes", {}).items()}
+        operator.check("estop stops it", code == 0 and st.get("phase") == "fault" and legs and
+                       all(s == "IDLE" for s in legs.values()),
+                       f"estop exit {code}; phase {st.get('phase')} ({st.get('fault_cause')}); drivers {legs}")
+        first_rc = stop(daemon)
+        operator.check("first daemon stopped", first_rc == 0, f"exit code {first_rc} after SIGTERM")
+
+        # the daemon restarted (a crash, a reboot): the e-stop must stay latched until a person clears it
+        daemon, t_start, ready = start()
+        say(f"restarted: READY after {ready.t_s - t_start:.1f} s")
+        code, reply, err = operator.verb("arm")
+        time.sleep(1.0)
+        st = operator.status()
+        operator.check("stays stopped across a restart", code == 1 and "ESTOP_REQUESTED" in (reply.get("refused") or err)
+                       and st.get("phase") != "walk",
+                       f"arm exit {code}: {(reply.get('refused') or err).strip()}; phase {st.get('phase')}: {axes_text(st)}")
+        code, _, err = operator.verb("clear-faults")
+        st = operator.wait_for("inactive", 15.0, alive)
+        cleared = code == 0 and st.get("phase") == "inactive" and not any(a.get("error") for a in st.get("axes", {}).values())
+        code2, _, err2 = operator.verb("arm")
+        st = operator.wait_for("walk", 30.0, alive)
+        operator.check("clear-faults, then arm walks again", cleared and code2 == 0 and st.get("phase") == "walk",
+                       f"clear-faults exit {code}, arm exit {code2}{': ' + err2.strip() if code2 else ''}; "
+                       f"phase {st.get('phase')}: {axes_text(st)}")
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline and alive():
+            time.sleep(0.1)
+    except (HilError, OSError, ValueError, subprocess.TimeoutExpired) as exc:
         error = str(exc)
         say(f"error: {error}")
     finally:
@@ -309,7 +383,8 @@ def run_dryrun(*, unit: str | Path = UNIT, config: str | Path | None = None, sec
         ctl_log.close()
     final = final_record((work / "controller.log").read_text())
     items = checklist(messages=listener.snapshot(), pid=daemon.pid if daemon else -1, t_start=t_start or 0.0,
-                      t_term=t_term, rc=rc, final=final, status_running=status_running, bye=bye, dep=dep)
+                      t_term=t_term, rc=rc, final=final, status_running=status_running, bye=bye, dep=dep,
+                      pids=pids) + operator.items
     report = {
         "ok": error is None and all(i["ok"] for i in items),
         "checks": items,
@@ -324,6 +399,8 @@ def run_dryrun(*, unit: str | Path = UNIT, config: str | Path | None = None, sec
         "seconds": seconds,
         "where": profile.name,
         "notifications": [{"t_s": m.t_s - (t_start or 0.0), "pid": m.pid, **m.fields} for m in listener.snapshot()],
+        "daemon_pids": pids,
+        "operator": operator.transcript,
         "final": {k: v for k, v in final.items() if k != "weights"},
     }
     write_json_atomic(work / "dryrun.json", report, indent=1)

@@ -60,7 +60,7 @@ class LearnConfig:
             at ``trace_rate_hz`` into the trial's ``trace`` (Fig. 2, burst against time);
             negative indices count from the end; default none.
         trace_rate_hz: sample rate of a trace [Hz]; default 100.
-        controller: the controller's configuration.
+        controller: the controller's configuration (its ``auto_arm`` is set: a run arms by itself).
     """
 
     trials: int = 150
@@ -80,6 +80,8 @@ class LearnConfig:
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 
     def __post_init__(self) -> None:
+        if not self.controller.auto_arm:  # the lockstep arms by itself (LockstepConfig.auto_arm): say so
+            object.__setattr__(self, "controller", replace(self.controller, auto_arm=True))
         if not get_method(self.method).learns:  # a registry name (else ValueError); ``none`` never learns
             object.__setattr__(self, "learning", False)
         if not 1 <= self.trials <= 100000:

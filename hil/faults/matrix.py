@@ -9,6 +9,10 @@ A row is one fault case on one seed (:class:`FaultCase`). Two kinds of case:
   as the daemon does. ``success_last_50`` (:func:`hil.analysis.metrics.success_last`) is the
   learning outcome under that fault; if the controller stopped safely, the run ends there, with
   ``stopped_at_trial`` and the cause, and ``success_last_50`` is None.
+- **Lifecycle rows** (:mod:`hil.faults.lifecycle`: a latched e-stop or driver error at start, a
+  second master, a restart without walking, an incompatible weights file, SIGHUP, SIGUSR1): each
+  starts what it needs (lockstep, or the daemon with the simulated leg in one process) and reports
+  its own figure; they are in the default matrix and can be named with ``--only``.
 - **Events** (``silence`` of one node, ``kill`` of the controller, ``cut`` of its cable,
   ``bus_off`` of its CAN interface for ``outage_s``): the leg walks into a trial, the event
   happens 1.5 s in, and the leg runs on until every axis is IDLE (or for 3 s: an outage short
@@ -420,14 +424,23 @@ def main_faults(args) -> int:
     """``elegant-stepping faults``: run the matrix, write the rows as JSON and a Markdown table."""
     from hil.experiments.sweep import parse_seeds
 
+    from hil.faults.lifecycle import ROWS as LIFECYCLE_ROWS, run_rows
+
     out = Path(args.out)
     cases = default_cases(parse_seeds(args.seeds), parse_seeds(args.loss_seeds) if args.loss_seeds else ())
+    lifecycle = list(LIFECYCLE_ROWS)
     if args.only:
-        wanted = {w.strip() for w in args.only.split(",")}
+        wanted = [w.strip() for w in args.only.split(",") if w.strip()]
+        known = ["none", *FAULT_KINDS, *EVENTS, "kill_during_save", *LIFECYCLE_ROWS]
+        unknown = [w for w in wanted if w not in known]
+        if unknown or not wanted:
+            raise ValueError(f"--only: unknown fault(s) {', '.join(unknown) or '(none given)'}; known: {', '.join(known)}")
         cases = [c for c in cases if c.fault in wanted]
-    rows = run_matrix(cases, args.trials, out, workers=args.workers, progress=not args.quiet)
+        lifecycle = [name for name in lifecycle if name in wanted]
+    rows = run_matrix(cases, args.trials, out, workers=args.workers, progress=not args.quiet) if cases else []
     if args.kills and (not args.only or "kill_during_save" in args.only):
         rows.append(killsave_row(args.kills, 0, out))
+    rows += run_rows(lifecycle, out / "lifecycle")
     if args.hil:  # read back when done before with as many trials, like the lockstep cases
         done = out / "hil" / "rows.json"
         hil = json.loads(done.read_text()) if done.exists() else None

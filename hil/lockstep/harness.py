@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import itertools
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import can
 
@@ -40,14 +40,20 @@ class LockstepConfig:
         rig: the plant (physics rate, rail speed, sensor mounting).
         hardware: the leg's nodes and wiring.
         controller: the controller's configuration (its rate must divide the physics rate).
+        auto_arm: the controller arms by itself once every node is heard (its ``auto_arm`` is
+            set to this), as every experiment needs; default True. False leaves arming to
+            ``loop.request_arm``.
     """
 
     seed: int = 0
     rig: RigConfig = RigConfig()
     hardware: LegHardware = field(default_factory=LegHardware)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
+    auto_arm: bool = True
 
     def __post_init__(self) -> None:
+        if self.controller.auto_arm != self.auto_arm:
+            object.__setattr__(self, "controller", replace(self.controller, auto_arm=self.auto_arm))
         ratio = self.rig.physics_hz / self.controller.rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ValueError(

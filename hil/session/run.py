@@ -128,8 +128,11 @@ def assemble_trials(truths: list[dict[str, Any]], records: dict[str, list[dict[s
 def session_controller_config(config: LearnConfig, profile: Profile | None = None) -> ControllerConfig:
     """The controller configuration of a session on this platform (``profile``, default
     :func:`hil.profile.current`): the learning run's, as :meth:`hil.profile.Profile.controller_config`
-    adapts it (a longer node-silence timeout inside User-Mode Linux)."""
-    return (profile or current_profile()).controller_config(config.lockstep().controller)
+    adapts it (a longer node-silence timeout inside User-Mode Linux), arming by itself once every
+    node is heard (``auto_arm = true`` in the controller.toml the session writes: a session on
+    vcan has no operator)."""
+    ctl = (profile or current_profile()).controller_config(config.lockstep().controller)
+    return dataclasses.replace(ctl, auto_arm=True)
 
 
 def session_envs(profile: Profile | None = None) -> tuple[dict[str, str], dict[str, str]]:
@@ -162,7 +165,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     config = LearnConfig(trials=trials, seed=seed, obstacle_height_m=obstacle_height_m, range_noise_m=range_noise_m,
                          learning=learning)
     ctl_config = session_controller_config(config)
-    write_config(work / "controller.toml", session_config(ctl_config, channel),
+    write_config(work / "controller.toml", session_config(ctl_config, channel, work / "control.sock"),
                  header="the controller's configuration in this hil session (written by hil.session.run)")
     (out / "controller.json").unlink(missing_ok=True)  # an older session's (replay would prefer the TOML anyway)
     records_path = work / "controller.jsonl"

@@ -13,9 +13,12 @@ import pytest
 
 
 def test_the_deployment_dry_run_against_the_simulated_leg(tmp_path):
-    """systemd's part, played in full: the unit's own ExecStart (only --config swapped for
-    configs/sim.toml) as a separate process against firmware-sim on vcan0, NOTIFY_SOCKET and
-    WATCHDOG_USEC from the unit; READY, regular pings, STOPPING after SIGTERM, exit 0."""
+    """systemd's part and the person's, played in full: the unit's own ExecStart (only --config
+    swapped for a copy of configs/sim.toml that waits for a person) as a separate process against
+    firmware-sim on vcan0, NOTIFY_SOCKET and WATCHDOG_USEC from the unit; READY when inactive,
+    `status`, `arm` walks, `estop` stops, a restart keeps it stopped (arm refused: the e-stop is
+    latched in the drivers), `clear-faults` then `arm` walks again; regular pings, STOPPING after
+    SIGTERM, exit 0."""
     from hil.uml.runner import VcanUnavailable, where
 
     try:
@@ -33,16 +36,22 @@ def test_the_deployment_dry_run_against_the_simulated_leg(tmp_path):
     log = (out / "controller.log").read_text()[-3000:] if (out / "controller.log").exists() else ""
     assert done.returncode == 0 and report["ok"] and not failed, f"{done.stdout}\n{failed}\n{report['error']}\n{log}"
     notes = report["notifications"]
-    pids = {n["pid"] for n in notes}
-    assert len(pids) == 1  # all from the daemon's main pid (NotifyAccess=main)
+    checks = {c["check"] for c in report["checks"]}
+    assert {"status while inactive", "arm walks the leg", "estop stops it", "stays stopped across a restart",
+            "clear-faults, then arm walks again"} <= checks
+    pids = report["daemon_pids"]
+    assert len(pids) == 2 and {n["pid"] for n in notes} == set(pids)  # each from its daemon's main pid
+    assert [o["verb"] for o in report["operator"] if o["verb"] != "status"] == ["arm", "estop", "arm", "clear-faults", "arm"]
+    assert [o["exit"] for o in report["operator"] if o["verb"] == "arm"] == [0, 1, 0]
+    notes = [n for n in notes if n["pid"] == pids[-1]]  # the restarted daemon's
     ready = next(i for i, n in enumerate(notes) if n.get("READY") == "1")
     stopping = next(i for i, n in enumerate(notes) if n.get("STOPPING") == "1")
-    assert ready < stopping and "closed loop" in notes[ready]["STATUS"]
+    assert ready < stopping and notes[ready]["STATUS"].startswith("inactive")
     assert report["watchdog_usec"] == 1_000_000
     pings = [n["t_s"] for n in notes[ready:stopping] if n.get("WATCHDOG") == "1"]
-    assert len(pings) >= seconds / 0.5 * 0.5  # every 0.5 s: about 12 in 6 s
+    assert len(pings) >= 2.0 / 0.5 * 0.5  # every 0.5 s (this daemon runs at least 2 s after its READY)
     assert max(np.diff(pings)) < 1.0  # never a gap systemd would have killed it for
-    assert any(n.get("STATUS") == "walking" for n in notes[ready:stopping])
+    assert any(n.get("STATUS", "").endswith("walking") for n in notes[ready:stopping])
     assert report["final"]["stopped_by"] == "SIGTERM" and report["final"]["steps"] > 0
     assert report["final"]["sd_notify"]["errors"] == 0
     assert report["exec_start"][-2:] == ["--config", "/etc/elegant-stepping/leg.toml"]

@@ -25,10 +25,13 @@ def test_every_verb_module_has_add_arguments_and_run_and_imports_nothing_heavy_a
             (verb.name, top)
 
 
-def test_the_leg_offers_run_bringup_and_config_and_the_harness_the_same_modules():
-    assert [v.name for v in LEG_VERBS] == ["run", "bringup", "config"]
-    harness = {v.module for v in HARNESS_VERBS}
-    assert {v.module for v in LEG_VERBS} <= harness
+def test_the_leg_offers_its_verbs_and_the_harness_reuses_the_same_modules():
+    assert [v.name for v in LEG_VERBS] == ["run", "bringup", "config", "status", "arm", "disarm", "clear-faults",
+                                           "estop"]
+    harness = {v.name: v.module for v in HARNESS_VERBS}
+    # the harness's controller, config and bringup are the leg's own modules, not copies
+    assert (harness["controller"], harness["config"], harness["bringup"]) == \
+        ("controller.cli.run", "controller.cli.config", "controller.cli.bringup")
     assert all(not v.needs for v in LEG_VERBS)  # the leg runs on the core install
 
 

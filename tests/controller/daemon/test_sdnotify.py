@@ -147,24 +147,36 @@ def test_a_full_listener_does_not_block_the_sender():
         deaf.close()
 
 
-def test_daemon_notify_ready_once_at_closed_loop_status_on_phases_ping_in_fault(listener):
+def test_daemon_notify_ready_once_when_inactive_status_on_phases_ping_in_fault(listener):
     d = DaemonNotify(Notifier({"NOTIFY_SOCKET": listener.address, "WATCHDOG_USEC": "1000000"}))
     d.tick(0.0)
-    for p in (Phase.WAIT_NODES, Phase.ARMING, Phase.RAMP, Phase.WALK):
+    for p in (Phase.WAIT_NODES, Phase.INACTIVE, Phase.ARMING, Phase.RAMP, Phase.WALK):
         d.phase(p)
     d.phase(Phase.FAULT, "axis hip left closed loop")
     d.tick(0.6)  # FAULT: the loop is alive and keeps the axes IDLE, so it keeps pinging
+    d.phase(Phase.WAIT_NODES)  # faults cleared: no second READY
+    d.phase(Phase.INACTIVE)
     d.stopping("SIGTERM")
-    got = [m.fields for m in wait_messages(listener, 8)]
+    got = [m.fields for m in wait_messages(listener, 11)]
     assert got[0] == {"WATCHDOG": "1"}
-    assert got[1] == {"STATUS": phase_status(Phase.WAIT_NODES)} and got[2] == {"STATUS": phase_status(Phase.ARMING)}
-    assert got[3] == {"READY": "1", "STATUS": phase_status(Phase.RAMP)}
-    assert got[4] == {"STATUS": "walking"}
-    assert got[5]["STATUS"].startswith("FAULT") and "hip left closed loop" in got[5]["STATUS"]
-    assert got[6] == {"WATCHDOG": "1"}
-    assert got[7]["STOPPING"] == "1" and "SIGTERM" in got[7]["STATUS"]
+    assert got[1] == {"STATUS": phase_status(Phase.WAIT_NODES)} and got[1]["STATUS"].startswith("inactive: ")
+    assert got[2] == {"READY": "1", "STATUS": phase_status(Phase.INACTIVE)}  # inactive and healthy
+    assert got[3] == {"STATUS": phase_status(Phase.ARMING)} and got[3]["STATUS"].startswith("active: ")
+    assert got[4] == {"STATUS": phase_status(Phase.RAMP)}
+    assert got[5] == {"STATUS": "active: walking"}
+    assert got[6]["STATUS"].startswith("fault: ") and "hip left closed loop" in got[6]["STATUS"]
+    assert got[7] == {"WATCHDOG": "1"}
+    assert got[8] == {"STATUS": phase_status(Phase.WAIT_NODES)} and got[9] == {"STATUS": phase_status(Phase.INACTIVE)}
+    assert got[10]["STOPPING"] == "1" and "SIGTERM" in got[10]["STATUS"]
     assert sum("READY" in m for m in got) == 1 and d.summary()["ready_sent"]
     d.close()
+
+
+def test_ready_comes_with_auto_arm_in_the_tick_inactive_is_passed():
+    from controller.daemon.notify import READY_PHASES
+
+    assert Phase.INACTIVE in READY_PHASES and Phase.ARMING in READY_PHASES
+    assert Phase.WAIT_NODES not in READY_PHASES and Phase.FAULT not in READY_PHASES
 
 
 def test_parse_fields():
@@ -225,15 +237,18 @@ def test_run_controller_tells_systemd_ready_pings_and_stopping(listener, monkeyp
     monkeypatch.setenv("WATCHDOG_USEC", "200000")  # a ping every 0.1 s
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
     try:
-        final = run_controller({"interface": "virtual", "channel": channel}, ControllerConfig(), duration_s=3.0)
+        final = run_controller({"interface": "virtual", "channel": channel}, ControllerConfig(auto_arm=True),
+                               duration_s=3.0)
     finally:
         leg.close()
     got = listener.snapshot()
     ready = [m for m in got if m.has("READY", "1")]
-    assert len(ready) == 1 and "closed loop" in ready[0].fields["STATUS"], [m.fields for m in got]
-    statuses = [m.fields["STATUS"] for m in got if "STATUS" in m.fields and "READY" not in m.fields]
-    assert phase_status(Phase.ARMING) in statuses and "walking" in statuses  # (WAIT_NODES may end in the first tick)
-    assert not any(s.startswith("FAULT") for s in statuses), statuses
+    # auto_arm arms in the tick INACTIVE is reached: READY comes with ARMING's status
+    assert len(ready) == 1 and ready[0].fields["STATUS"] in (phase_status(Phase.INACTIVE), phase_status(Phase.ARMING)), \
+        [m.fields for m in got]
+    statuses = [m.fields["STATUS"] for m in got if "STATUS" in m.fields]
+    assert phase_status(Phase.ARMING) in statuses and "active: walking" in statuses
+    assert not any(s.startswith("fault") for s in statuses), statuses
     pings = [m.t_s for m in got if m.has("WATCHDOG", "1")]
     assert len(pings) >= 15  # 3 s at 0.1 s: about 30 on a quiet machine
     assert max(np.diff(pings)) < 0.2  # never as long as the watchdog limit: systemd would not kill it
@@ -275,7 +290,8 @@ def test_a_stuck_loop_stops_pinging_the_drivers_stop_the_leg_and_fault_keeps_pin
     monkeypatch.setenv("WATCHDOG_USEC", "200000")
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
     try:
-        final = run_controller({"interface": "virtual", "channel": channel}, ControllerConfig(), duration_s=4.0)
+        final = run_controller({"interface": "virtual", "channel": channel}, ControllerConfig(auto_arm=True),
+                               duration_s=4.0)
     finally:
         leg.close()
     assert "to" in stall, "the loop never walked"
@@ -285,7 +301,7 @@ def test_a_stuck_loop_stops_pinging_the_drivers_stop_the_leg_and_fault_keeps_pin
     assert any(b - a >= 0.35 for a, b in zip(pings, pings[1:]))  # longer than WATCHDOG_USEC/2: systemd would act
     assert all(int(a.errors) & AxisError.WATCHDOG_TIMER_EXPIRED for a in leg.axes)  # the drivers stopped the leg
     assert all(a.state is AxisState.IDLE for a in leg.axes)
-    fault = next(m for m in got if m.fields.get("STATUS", "").startswith("FAULT"))
+    fault = next(m for m in got if m.fields.get("STATUS", "").startswith("fault"))
     assert fault.t_s >= stall["to"] - 0.01 and "closed loop" in fault.fields["STATUS"]
     assert len([t for t in pings if t > fault.t_s]) >= 5  # alive and safe in FAULT: still pinging
     assert final["phase"] == "fault" and got[-1].has("STOPPING", "1")

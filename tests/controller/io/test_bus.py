@@ -427,3 +427,18 @@ def test_a_corrupted_sequence_number_costs_one_frame_and_a_restart_is_followed()
     assert not s.on_range((1.0, 1, 0), 1.0)  # the board restarted: the first frame is a jump
     assert s.on_range((1.0, 1, 1), 1.02) and s.range_seq == 1  # the second confirms it
     assert s.on_range((1.0, 1, 3), 1.06) and s.range_lost == 1  # an ordinary gap
+
+
+def test_frames_from_another_master_are_counted_per_id_and_bus_voltage_is_read():
+    io, bus, (hip, knee), _ = make_io()
+    voltage = contract.codec("Get_Bus_Voltage_Current")
+    vid = contract.odrive_id(0, "Get_Bus_Voltage_Current")
+    bus.push(hip.pos_frame(0.1), knee.estop_frame(), knee.estop_frame(), data_frame(vid, voltage.pack(24.5, 1.0)))
+    assert io.drain(0.5) == 1
+    assert io.foreign == {hip.pos_id: 1, knee.estop_id: 2} and io.dropped["unexpected_sender"] == 3
+    assert hip.bus_voltage_v == pytest.approx(24.5) and knee.bus_voltage_v is None
+    for bad in (math.nan, -1.0, 1000.0):
+        bus.push(data_frame(vid, voltage.pack(bad, 0.0)))
+        io.drain(0.6)
+    assert hip.bus_voltage_v == pytest.approx(24.5) and io.dropped["invalid"] == 3
+    assert frames_add_up(io)

@@ -16,10 +16,10 @@ from hypothesis import given, settings as hypothesis_settings, strategies as st
 
 from controller.config import ControllerConfig
 from controller.io.axis import AxisConfig
-from controller.settings.file import (MODEL, SECTIONS, BusSettings, ConfigError, DeployConfig, DriverSettings,
-                                 WeightsSettings, _build, check_config, config_from_dict, config_from_toml,
-                                 load_config, to_toml, toml_string, tomllib, validate_tables,
-                                 write_config)
+from controller.settings.file import (MODEL, SECTIONS, BusSettings, CalibrationSettings, ConfigError, DeployConfig,
+                                 DriverSettings, ServiceSettings, WeightsSettings, _build, check_config,
+                                 config_from_dict, config_from_toml, config_tables, load_config, to_toml,
+                                 toml_string, tomllib, validate_tables, write_config)
 from hil.cli import main
 from controller.settings.daemon import daemon_settings
 from hil.analysis.legacy_config import load_controller_config
@@ -45,7 +45,13 @@ def check(capsys, path) -> tuple[int, str, str]:
 def test_the_example_configs_pass_check(name, capsys):
     rc, out, err = check(capsys, EXAMPLES[name])
     assert rc == 0, err
-    assert out.startswith(f"{EXAMPLES[name]}: OK: socketcan ") and out.count("\n") == 1 and not err
+    assert out.startswith(f"{EXAMPLES[name]}: OK: socketcan ") and out.count("\n") == 1
+    if name == "sim":  # the simulation: confirmed, no warning
+        assert not err and out.rstrip().endswith("calibration confirmed")
+    else:  # a real leg's example values: valid, but not armable until a person confirms them
+        assert out.rstrip().endswith("calibration NOT confirmed")
+        assert err.startswith(f"WARNING: {EXAMPLES[name]}: calibration not confirmed") and err.count("\n") == 1
+        assert "bringup --config" in err and "config confirm" in err
 
 
 def test_the_sim_example_is_the_simulated_leg_as_hil_runs_it():
@@ -55,7 +61,12 @@ def test_the_sim_example_is_the_simulated_leg_as_hil_runs_it():
 
     cfg = load_config(EXAMPLES["sim"])
     assert cfg.bus == BusSettings("socketcan", "vcan0", 1_000_000)
-    assert cfg.controller == LearnConfig().lockstep().controller == ControllerConfig()
+    assert cfg.controller.auto_arm is True  # the simulation arms itself, as lockstep runs do
+    lockstep = LearnConfig().lockstep().controller
+    assert dataclasses.replace(cfg.controller, auto_arm=False) == dataclasses.replace(lockstep, auto_arm=False) \
+        == ControllerConfig()
+    assert cfg.calibration.confirmed is True and cfg.armable_reason() is None  # the simulation, confirmed
+    assert cfg.service.control_socket == "/tmp/elegant-stepping-sim.sock"  # works without root
     hw, driver = LegHardware(), DriverConfig(node_id=0)
     hip, knee = cfg.controller.axis("hip"), cfg.controller.axis("knee")
     assert (hip.node_id, knee.node_id) == (hw.hip_node_id, hw.knee_node_id)
@@ -79,6 +90,13 @@ def test_the_odrive_example_is_a_real_leg_on_can0():
                 "vel_limit_rev_s", "watchdog_timeout_s"):
         assert key in text
     assert "calibration" in text.lower() and "odrivetool" in text
+    # its calibration values are examples: not confirmed, never armable as it is
+    assert cfg.calibration == CalibrationSettings() and cfg.controller.auto_arm is False
+    assert cfg.armable_reason().startswith("calibration not confirmed")
+    assert str(EXAMPLES["odrive-leg"]) in cfg.armable_reason()
+    for step in ("bringup --config", "--json report.json", "config confirm", "--bringup report.json"):
+        assert step in text, step
+    assert cfg.service.control_socket == "/run/elegant-stepping/control.sock"
 
 
 def test_the_defaults_are_the_simulated_drivers_own():
@@ -101,7 +119,8 @@ def test_config_show_reads_back_to_the_same_config(name, capsys, tmp_path):
     expected = DeployConfig() if name is None else load_config(EXAMPLES[name])
     assert config_from_toml(shown) == expected
     assert load_config(write(tmp_path, shown)) == expected  # a saved `show` is a complete config file
-    assert set(tomllib.loads(shown)) == {"bus", "controller", "axes", "drivers", "weights", *MODEL}
+    assert set(tomllib.loads(shown)) == {"bus", "controller", "axes", "drivers", "weights", "service", "calibration",
+                                         *MODEL}
     assert config_from_toml(to_toml(expected, comments=False)) == expected
 
 
@@ -178,8 +197,8 @@ def test_the_schema_is_never_looser_than_the_dataclasses(section, key, value):
 
 
 def test_every_default_is_in_its_range():
-    tables, problems = validate_tables({})
-    assert problems == []
+    tables = config_tables(DeployConfig())
+    assert validate_tables({"bus": {"channel": "vcan0"}})[1] == []  # on a simulated bus, every default holds
     for section, settings in SECTIONS.items():
         for s in settings:
             value = tables[section][s.key]
@@ -196,7 +215,8 @@ def _dataclass_with(section: str, key: str, value):
         return dataclasses.replace(base, **{key: value})
     if section in MODEL:
         return dataclasses.replace(getattr(base, section), **{key: value})
-    return {"bus": BusSettings, "drivers": DriverSettings, "weights": WeightsSettings}[section](**{key: value})
+    return {"bus": BusSettings, "drivers": DriverSettings, "weights": WeightsSettings, "service": ServiceSettings,
+            "calibration": CalibrationSettings}[section](**{key: value})
 
 
 @pytest.mark.parametrize("section,key", [(section, s.key) for section, settings in SECTIONS.items()
@@ -242,6 +262,16 @@ BAD = [
     ("drivers.watchdog_timeout_s", "0", ["[0.005, 1] s"]),
     ("weights.path", '"weights.txt"', [".npz"]),
     ("weights.save_every_s", "0", ["[0.1, 86400] s"]),
+    ("weights.generations", "0", ["[1, 100] (files)"]),
+    ("service.control_socket", '""', ["control socket"]),
+    ("service.control_socket", '"/' + "x" * 120 + '.sock"', ["at most 107 bytes"]),
+    ("service.control_group", '"two words"', ["group name"]),
+    ("service.records_max_bytes", "10", ["[10000, 1000000000000] bytes"]),
+    ("service.records_keep", "-1", ["[0, 1000] (files)"]),
+    ("calibration.confirmed", '"yes"', ["must be true or false"]),
+    ("calibration.confirmed_at", '"yesterday"', ["ISO 8601"]),
+    ("calibration.confirmed_at", '"2025-01-31T12:00:00"', ["UTC"]),
+    ("calibration.bringup", '"two\\nlines"', ["one line"]),
     ("cpg.stance_s", "0", ["[0.05, 5] s"]),
     ("cpg.units_per_half", "9", ["[1, 8] units"]),
     ("gait.step_height_m", "0.5", ["[0, 0.3] m"]),
@@ -375,8 +405,10 @@ def test_every_problem_in_a_file_is_reported_at_once(tmp_path, capsys):
             "[learner]\nlearning = \"yes\"\nfoo = 1\n")
     rc, _, err = check(capsys, write(tmp_path, text))
     lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 6, err  # five problems, one per line, and the count
-    assert lines[-1].endswith("5 problems")
+    assert rc == 2 and len(lines) == 9, err  # eight problems, one per line, and the count
+    assert lines[-1].endswith("8 problems")
+    # on can0 (the default channel) the file must also give [bus] interface, channel and every calibration key
+    assert sum("not given; on a real CAN bus" in x for x in lines) == 3
     for dotted in ("bus.bitrate", "axes.knee.gear_ratio", "learner.learning", "learner.foo", "axes.knee.node_id = 0"):
         assert any(dotted in x for x in lines), dotted
 
@@ -388,11 +420,14 @@ def test_config_show_of_a_bad_file_exits_2(tmp_path, capsys):
 
 
 def test_a_partial_file_keeps_the_defaults_and_relative_weights_are_beside_it(tmp_path):
-    cfg = load_config(write(tmp_path, "[weights]\npath = \"state/w.npz\"\n[learner]\nlearning = false\n"))
+    cfg = load_config(write(tmp_path, "[bus]\nchannel = \"vcan0\"\n[weights]\npath = \"state/w.npz\"\n"
+                                      "[learner]\nlearning = false\n[service]\ncontrol_socket = \"run/c.sock\"\n"))
     assert cfg.weights_file == str(tmp_path / "state" / "w.npz")
+    assert cfg.service.control_socket == str(tmp_path / "run" / "c.sock")  # the same rule as the weights'
     assert cfg.controller.learner.learning is False
     assert dataclasses.replace(cfg.controller, learner=ControllerConfig().learner) == ControllerConfig()
-    assert config_from_dict({}) == DeployConfig()
+    assert config_from_dict({"bus": {"interface": "virtual"}}) == DeployConfig(bus=BusSettings(interface="virtual"))
+    assert config_from_dict({"bus": {"channel": "vcan3"}}).source == ""
 
 
 # --------------------------------------------------------------------------- the daemon
@@ -413,11 +448,15 @@ def test_the_daemon_settings_take_the_file_then_the_command_line(tmp_path):
 def test_the_daemon_reads_its_bus_weights_and_controller_from_the_toml_file(tmp_path, capsys):
     channel = f"settings-{uuid.uuid4().hex[:8]}"
     path = write(tmp_path, f"[bus]\ninterface = \"virtual\"\nchannel = \"{channel}\"\n"
-                           "[controller]\nbringup_timeout_s = 0.1\n[weights]\npath = \"w.npz\"\n")
+                           "[controller]\nbringup_timeout_s = 0.1\n[weights]\npath = \"w.npz\"\n"
+                           "[service]\ncontrol_socket = \"c.sock\"\n")
     assert main(["controller", "--config", str(path), "--seconds", "0.4"]) == 1  # no leg: bring-up times out
     final = json.loads(capsys.readouterr().err.strip().splitlines()[-1])
     assert final["phase"] == "fault"  # [controller] bringup_timeout_s, on the [bus] given (no bus arguments)
-    assert final["weights_saved"] is True and (tmp_path / "w.npz").exists()  # [weights] path, beside the file
+    assert final["control"]["socket"] == str(tmp_path / "c.sock")  # [service] control_socket, beside the file
+    # [weights] path, beside the file: saved at exit unless they did not change (then nothing is written)
+    assert final["weights_saved"] is (None if final.get("weights_unchanged") else True)
+    assert (tmp_path / "w.npz").exists() is bool(final["weights_saved"])
 
 
 def test_the_daemon_refuses_a_bad_file_naming_the_field(tmp_path, capsys):
@@ -485,7 +524,8 @@ def test_a_hil_session_writes_a_controller_toml_the_daemon_reads(in_uml, tmp_pat
 
     ctl = hilrun.session_controller_config(LearnConfig(trials=1, seed=0, range_noise_m=0.0, learning=False),
                                            profile.UML if in_uml else profile.NATIVE)
-    path = write_config(tmp_path / "controller.toml", session_config(ctl, "vcan0"), header="a session")
+    path = write_config(tmp_path / "controller.toml", session_config(ctl, "vcan0", tmp_path / "control.sock"),
+                        header="a session")
     assert load_config(path).controller == ctl and load_config(path).bus.channel == "vcan0"
     assert load_controller_config(path) == ctl  # what replay reads beside the log
     channel = f"session-{uuid.uuid4().hex[:8]}"

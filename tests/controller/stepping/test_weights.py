@@ -239,3 +239,48 @@ def test_killsave_command_writes_the_counts(tmp_path, capsys):
     assert r["kills"] == 5 and r["corrupt_loads"] == 0 and r["seed"] == 3
     assert "5 kill -9s" in capsys.readouterr().err
     assert main(["killsave", "--kills", "0"]) == 2
+
+
+def test_generations_rotate_on_each_save_and_the_fallback_tries_them_in_order(tmp_path, caplog):
+    from controller.stepping.weights import generation_path
+
+    path = tmp_path / "w.npz"
+    for k in range(1, 6):
+        save_weights(path, W * k, 0.04, generations=3)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["w.npz", "w.npz.prev", "w.npz.prev2"]
+    assert [load_weights(generation_path(path, g), 28, 0.04)[0] / W[0] for g in range(3)] == pytest.approx([5, 4, 3])
+    # a damaged middle generation is dropped by the next rotation, never shifted down as if good
+    generation_path(path, 1).write_bytes(b"PK\x03\x04 damaged")
+    save_weights(path, W * 6, 0.04, generations=3)
+    assert [load_weights(generation_path(path, g), 28, 0.04)[0] / W[0] for g in range(3)] == pytest.approx([6, 5, 3])
+    # the fallback: file, prev, prev2 in order
+    path.write_bytes(b"garbage")
+    generation_path(path, 1).write_bytes(b"garbage")
+    w, source = load_weights_or_fallback(path, 28, 0.04, generations=3)
+    assert source == "prev2" and np.array_equal(w, W * 3)
+    w, source = load_weights_or_fallback(path, 28, 0.04)  # two generations by default: file, prev
+    assert source == "zeros"
+    with pytest.raises(ValueError, match="generations"):
+        save_weights(path, W, 0.04, generations=0)
+
+
+def test_resume_sets_incompatible_generations_aside_and_loads_the_first_that_fits(tmp_path):
+    from controller.stepping.weights import IncompatibleWeights, WeightsError, resume_weights
+
+    assert issubclass(IncompatibleWeights, WeightsError)
+    path = tmp_path / "w.npz"
+    save_weights(path, W, 0.04, generations=3)          # -> .prev2: fits
+    save_weights(path, W[:20], 0.04, generations=3)     # -> .prev: 20 cells
+    save_weights(path, W, 0.05, generations=3)          # the file: another cell width
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    r = resume_weights(path, 28, 0.04, generations=3, set_aside_incompatible=True)
+    assert r.source == "prev2" and np.array_equal(r.weights, W)
+    assert [a[0] for a in r.set_aside] == [str(path), str(path) + ".prev"]
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names[0] == "w.npz.incompatible-" + names[0].split("incompatible-")[1] and "w.npz.prev2" in names
+    for old, moved, _ in r.set_aside:
+        assert open(moved, "rb").read() == before[os.path.basename(old)]  # byte for byte
+    # the same second twice: never over another set-aside file
+    save_weights(path, W, 0.05)
+    r2 = resume_weights(path, 28, 0.04, generations=3)
+    assert len(r2.set_aside) == 1 and r2.set_aside[0][1] != r.set_aside[0][1] and len(list(tmp_path.glob("*incompat*"))) == 3

@@ -42,6 +42,9 @@ def test_the_unit_has_the_sections_and_settings_the_deployment_relies_on(unit):
     assert "PrivateNetwork" not in unit["Service"]  # it would hide can0
     assert "CapabilityBoundingSet" in unit["Service"] and s("CapabilityBoundingSet") is None  # emptied
     assert value(unit, "Install", "WantedBy") == "multi-user.target"
+    # the control socket's folder (/run/elegant-stepping), reached by the daemon's group only
+    assert s("RuntimeDirectory") == "elegant-stepping" and s("RuntimeDirectoryMode") == "0750"
+    assert s("RestartPreventExitStatus") == "2"  # a configuration error: a restart would not fix it
 
 
 def test_the_watchdog_and_timeouts_leave_room_for_the_loop(unit):
@@ -80,6 +83,7 @@ def test_the_example_leg_config_matches_the_unit():
     pre = " ".join(" ".join(command_line(line)[1]) for line in u["Service"]["ExecStartPre"])
     assert f"{leg.bus.channel} type can bitrate {leg.bus.bitrate}" in pre
     assert Path(leg.weights.path).parent == Path("/var/lib") / value(u, "Service", "StateDirectory")
+    assert Path(leg.service.control_socket).parent == Path("/run") / value(u, "Service", "RuntimeDirectory")
     # READY may take Python's start-up plus two bring-up timeouts (nodes, then arming)
     assert time_span_s(value(u, "Service", "TimeoutStartSec")) >= 2 * leg.controller.bringup_timeout_s + 10.0
     # the daemon's own safe stop and the drivers' watchdog act long before systemd's watchdog
@@ -110,29 +114,67 @@ def test_bad_time_spans(bad):
         time_span_s(bad)
 
 
+UNCONFIRMED = "# a leg\n[calibration]\nconfirmed = false\n"
+CONFIRMED = "# a confirmed leg\n[calibration]  # by config confirm\nconfirmed = true  # yes\n"
+
+
+def _dry_run(config: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(["bash", str(INSTALL), "--dry-run", "--config", str(config)], capture_output=True, text=True,
+                          timeout=30)
+
+
 def test_install_script_parses_and_prints_its_plan_without_running_anything(tmp_path):
     assert subprocess.run(["bash", "-n", str(INSTALL)]).returncode == 0
     config = tmp_path / "leg.toml"
-    config.write_text("# a leg\n")
-    done = subprocess.run(["bash", str(INSTALL), "--dry-run", "--config", str(config)], capture_output=True, text=True,
-                          timeout=30)
+    config.write_text(CONFIRMED)
+    done = _dry_run(config)
     assert done.returncode == 0, done.stderr
     plan = done.stdout
     for step in ("python3 -m venv /opt/elegant-stepping/venv", "ln -sfn /opt/elegant-stepping/venv/bin/elegant-stepping-leg "
                  "/usr/local/bin/elegant-stepping-leg", "/etc/systemd/system/elegant-stepping-controller.service",
                  "/etc/elegant-stepping/leg.toml", "systemctl daemon-reload",
-                 "systemctl enable elegant-stepping-controller.service"):
+                 "+ systemctl enable elegant-stepping-controller.service"):
         assert step in plan, step
-    assert not any(line.startswith("+ systemctl start") for line in plan.splitlines())  # start after calibration
+    assert not any(line.startswith("+ systemctl start") for line in plan.splitlines())  # a person starts it
     # sourcing it runs nothing
     sourced = subprocess.run(["bash", "-c", f"source {INSTALL} && echo sourced"], capture_output=True, text=True,
                              timeout=30)
     assert sourced.stdout.strip() == "sourced"
 
 
+@pytest.mark.parametrize("text", [UNCONFIRMED, "# no calibration table at all\n",
+                                  "[calibration]\nconfirmed = false\n[bus]\nconfirmed = true\n",
+                                  "[calibrations]\nconfirmed = true\n", "[calibration]\n# confirmed = true\n"])
+def test_install_script_does_not_enable_an_unconfirmed_leg_and_says_how_to_confirm_it(text, tmp_path):
+    config = tmp_path / "leg.toml"
+    config.write_text(text)
+    done = _dry_run(config)
+    assert done.returncode == 0, done.stderr
+    plan = done.stdout
+    assert "+ systemctl daemon-reload" in plan
+    assert not any(line.startswith("+ systemctl enable") for line in plan.splitlines())
+    assert "NOT enabling elegant-stepping-controller.service" in plan and "not confirmed" in plan
+    for step in ("elegant-stepping-leg bringup --config /etc/elegant-stepping/leg.toml --json report.json",
+                 "elegant-stepping-leg config confirm /etc/elegant-stepping/leg.toml --bringup report.json",
+                 "systemctl enable --now elegant-stepping-controller.service"):
+        assert step in plan, step
+
+
+def test_install_script_reads_the_examples_as_their_configs_do():
+    from controller.settings.file import load_config
+
+    for name in ("odrive-leg", "sim"):
+        path = REPO / "configs" / f"{name}.toml"
+        enabled = "+ systemctl enable" in _dry_run(path).stdout
+        assert enabled is load_config(path).calibration.confirmed, name
+    no = subprocess.run(["bash", str(INSTALL), "--dry-run", "--no-enable", "--config", str(REPO / "configs/sim.toml")],
+                        capture_output=True, text=True, timeout=30)
+    assert no.returncode == 0 and "+ systemctl enable" not in no.stdout and "(--no-enable)" in no.stdout
+
+
 def test_install_script_stages_the_files_under_a_root_and_keeps_an_existing_config(tmp_path):
     root, config = tmp_path / "root", tmp_path / "leg.toml"
-    config.write_text("# a leg\n")
+    config.write_text("# a leg\n")  # not confirmed: installed, not enabled
     run = lambda: subprocess.run(["bash", str(INSTALL), "--root", str(root), "--config", str(config)],  # noqa: E731
                                  capture_output=True, text=True, timeout=30)
     done = run()
@@ -144,11 +186,15 @@ def test_install_script_stages_the_files_under_a_root_and_keeps_an_existing_conf
     assert (root / "usr/local/share/elegant-stepping/sim.toml").read_text() == (REPO / "configs/sim.toml").read_text()
     assert (root / "usr/local/bin/elegant-stepping-leg").is_symlink()
     assert "(skipped under --root) systemctl daemon-reload" in done.stdout
-    (root / "etc/elegant-stepping/leg.toml").write_text("# calibrated\n")
+    assert "systemctl enable elegant-stepping" not in done.stdout and "NOT enabling" in done.stdout
+    (root / "etc/elegant-stepping/leg.toml").write_text("# calibrated\n" + CONFIRMED)
     config.write_text("# a newer example\n")
-    assert run().returncode == 0
-    assert (root / "etc/elegant-stepping/leg.toml").read_text() == "# calibrated\n"  # never overwritten
+    again = run()
+    assert again.returncode == 0
+    assert (root / "etc/elegant-stepping/leg.toml").read_text() == "# calibrated\n" + CONFIRMED  # never overwritten
     assert (root / "etc/elegant-stepping/leg.toml.new").read_text() == "# a newer example\n"
+    # the configuration in force is the existing, confirmed one (the new example only lies beside it)
+    assert "(skipped under --root) systemctl enable elegant-stepping-controller.service" in again.stdout
 
 
 def test_the_dry_run_swaps_only_the_config_and_the_bus(tmp_path):
@@ -221,7 +267,12 @@ def test_the_deploy_doc_covers_what_the_issue_asks():
     doc = (REPO / "docs" / "deploy.md").read_text()
     for needle in ("120", "1 Mbit/s", "node_id", "heartbeat_msg_rate_ms", "encoder_msg_rate_ms", "watchdog_timeout",
                    "POSITION_CONTROL", "PASSTHROUGH", "elegant-stepping-leg bringup", "WatchdogSec", "install.sh",
-                   "elegant-stepping dryrun", "zero_offset_rev", "direction"):
+                   "elegant-stepping dryrun", "zero_offset_rev", "direction", "## First power-on",
+                   "elegant-stepping-leg bringup --config /etc/elegant-stepping/leg.toml --json report.json",
+                   "elegant-stepping-leg config confirm /etc/elegant-stepping/leg.toml --bringup report.json",
+                   "systemctl enable --now elegant-stepping-controller", "elegant-stepping-leg status",
+                   "elegant-stepping-leg arm", "elegant-stepping-leg disarm", "elegant-stepping-leg estop",
+                   "elegant-stepping-leg clear-faults", "RuntimeDirectory", "RestartPreventExitStatus"):
         assert needle in doc, needle
 
 
@@ -236,18 +287,27 @@ def test_systemd_analyze_verify_accepts_the_unit(tmp_path):
     assert done.returncode == 0 and not done.stderr.strip(), done.stderr
 
 
-def test_the_dry_run_uses_the_sim_config_as_is_natively_and_a_marked_copy_inside_uml(tmp_path, monkeypatch):
+def test_the_dry_run_config_waits_for_a_person(tmp_path, monkeypatch):
+    import dataclasses
+
     from controller.settings.file import load_config
     from hil.dryrun.run import SIM_CONFIG, platform_config
     from hil.profile import UML
 
     monkeypatch.delenv("ELEGANT_STEPPING_IN_UML", raising=False)
-    assert platform_config(SIM_CONFIG, tmp_path, "vcan0") == (SIM_CONFIG, [])
+    original = load_config(SIM_CONFIG)
+    copy, swaps = platform_config(SIM_CONFIG, tmp_path, "vcan0")
+    changed = load_config(copy)
+    assert copy.parent.resolve() == tmp_path.resolve() and len(swaps) == 2
+    assert original.controller.auto_arm and not changed.controller.auto_arm  # the dry run plays the person
+    assert changed.service.control_socket == str(tmp_path / "control.sock")
+    assert dataclasses.replace(changed.controller, auto_arm=True) == original.controller  # nothing else
+    assert changed.bus == original.bus and changed.calibration == original.calibration
     with pytest.raises(ValueError, match="socketcan vcan0"):
         platform_config(REPO / "configs" / "odrive-leg.toml", tmp_path, "vcan0")  # the real leg's bus: refused
     monkeypatch.setenv("ELEGANT_STEPPING_IN_UML", "1")
     copy, swaps = platform_config(SIM_CONFIG, tmp_path, "vcan0")
-    assert copy.parent == tmp_path and len(swaps) == 1 and "silence_periods 3.5 -> 10" in swaps[0]
-    original, changed = load_config(SIM_CONFIG), load_config(copy)
+    assert len(swaps) == 3 and "silence_periods 3.5 -> 10" in swaps[2]
+    changed = load_config(copy)
     assert changed.controller.silence_periods == UML.min_silence_periods
     assert changed.bus == original.bus and changed.controller.axes == original.controller.axes

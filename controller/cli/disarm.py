@@ -1,0 +1,27 @@
+"""``disarm``: disarm the leg: every axis IDLE, back to inactive (not a fault).
+
+One request on the daemon's control socket (:mod:`controller.daemon.control`; the shared code is
+:mod:`controller.daemon.command`). ``--socket PATH``, or ``--config FILE`` (its ``[service]
+control_socket``), default ``/run/elegant-stepping/control.sock``; ``--json`` prints the reply.
+
+Exit codes: 0 accepted, 1 refused by the daemon (the reason on stderr), 2 no daemon there (or
+no permission: the socket's group is named) or bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+VERB = "disarm"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from controller.daemon.command import add_control_arguments
+
+    add_control_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from controller.daemon.command import leg_verb
+
+    return leg_verb(VERB, args)

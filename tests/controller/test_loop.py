@@ -1,0 +1,301 @@
+"""The loop's lifecycle: the operator's commands (arm, disarm, estop, clear faults), auto_arm, a
+second master, and what each sends on the bus (counted on a FakeBus)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+
+import pytest
+
+from controller.config import ControllerConfig
+from controller.loop import ControlLoop
+from controller.supervisor import Phase
+from protocol import SENSOR_BOARD_NODE_ID, AxisError, AxisState, BusContract, arbitration_id, data_frame
+from tests.fakes import FakeBus
+
+C = BusContract.load()
+HB, ENC, SB_HB = C.codec("Heartbeat"), C.codec("Get_Encoder_Estimates"), C.codec("SB_Heartbeat")
+ESTOP = int(AxisError.ESTOP_REQUESTED)
+
+
+def heartbeat(node: int, state: AxisState = AxisState.IDLE, error: int = 0):
+    return data_frame(C.odrive_id(node, "Heartbeat"), HB.pack(error, int(state), 0, 1))
+
+
+def encoder(node: int, pos_rev: float = 0.0):
+    return data_frame(C.odrive_id(node, "Get_Encoder_Estimates"), ENC.pack(pos_rev, 0.0))
+
+
+def sb_heartbeat():
+    return data_frame(arbitration_id(SENSOR_BOARD_NODE_ID, SB_HB.cmd_id), SB_HB.pack(0, 1, 1, 0.0))
+
+
+class Leg:
+    """A leg that answers only with what a test says: each :meth:`tick` pushes a heartbeat per
+    axis (its ``states`` and ``errors``), an encoder estimate per axis and the sensor board's
+    heartbeat, then ticks the loop."""
+
+    def __init__(self, **config) -> None:
+        self.bus = FakeBus()
+        self.loop = ControlLoop(ControllerConfig(**config), self.bus)
+        self.states = {0: AxisState.IDLE, 1: AxisState.IDLE}
+        self.errors = {0: 0, 1: 0}
+        self.t = 0.0
+        self.quiet: set[int] = set()
+
+    def tick(self, n: int = 1, feedback: bool = True) -> None:
+        for _ in range(n):
+            if feedback:
+                for node in (0, 1):
+                    if node not in self.quiet:
+                        self.bus.push(heartbeat(node, self.states[node], self.errors[node]), encoder(node))
+                self.bus.push(sb_heartbeat())
+            self.loop.tick(self.t)
+            self.t += self.loop.config.period_s
+
+    def sent(self, name: str, node: int | None = None) -> int:
+        ids = {C.odrive_id(n, name) for n in ((0, 1) if node is None else (node,))}
+        return sum(1 for m in self.bus.sent if m.arbitration_id in ids)
+
+    def follow(self) -> None:
+        """The drivers do what the last Set_Axis_State asked (when they have no error)."""
+        for node in (0, 1):
+            for m in self.bus.sent:
+                if m.arbitration_id == C.odrive_id(node, "Set_Axis_State"):
+                    state = AxisState(C.codec("Set_Axis_State").unpack(m.data)[0])
+                    self.states[node] = state if not self.errors[node] else AxisState.IDLE
+
+
+def test_the_loop_waits_inactive_without_an_arm_command_and_sends_nothing():
+    leg = Leg()
+    leg.tick(300)
+    assert leg.loop.phase is Phase.INACTIVE and leg.loop.lifecycle == "inactive"
+    assert leg.bus.sent == []
+
+
+def test_estop_latched_before_start_refuses_the_arm_naming_the_axis_and_its_error():
+    leg = Leg()
+    leg.errors[0] = ESTOP
+    leg.tick(5)
+    assert leg.loop.phase is Phase.INACTIVE  # an error while INACTIVE is not a fault
+    reason = leg.loop.request_arm(leg.t)
+    assert reason is not None and "hip" in reason and "ESTOP_REQUESTED" in reason and "0x2000000" in reason
+    assert "knee" not in reason
+    leg.tick(10)
+    assert leg.loop.phase is Phase.INACTIVE and leg.bus.sent == []  # nothing sent, Clear_Errors least of all
+    st = leg.loop.status()
+    assert st["axes"]["hip"]["error_names"] == ["ESTOP_REQUESTED"] and st["axes"]["hip"]["error"] == ESTOP
+    assert st["axes"]["knee"]["error_names"] == []
+
+
+def test_auto_arm_never_clears_a_latched_error():
+    leg = Leg(auto_arm=True)
+    leg.errors[1] = ESTOP | int(AxisError.WATCHDOG_TIMER_EXPIRED)
+    leg.tick(1000)  # two seconds: retried every 0.5 s, always refused
+    assert leg.loop.phase is Phase.INACTIVE
+    assert leg.sent("Clear_Errors") == 0 and leg.sent("Set_Axis_State") == 0 and leg.sent("Set_Input_Pos") == 0
+
+
+def test_arming_sends_no_clear_errors_and_reaches_walk():
+    leg = Leg()
+    leg.tick(3)
+    assert leg.loop.request_arm(leg.t) is None
+    for _ in range(800):
+        leg.tick()
+        leg.follow()
+    assert leg.loop.phase is Phase.WALK and leg.loop.lifecycle == "active"
+    assert leg.sent("Clear_Errors") == 0
+    assert leg.sent("Set_Controller_Mode", 0) == 1 and leg.sent("Set_Limits", 0) == 1
+    assert leg.sent("Set_Axis_State", 0) == 1 and leg.sent("Set_Input_Pos") > 0
+
+
+def test_auto_arm_arms_in_the_tick_inactive_is_reached():
+    leg = Leg(auto_arm=True)
+    phases = []
+    for _ in range(3):
+        leg.tick()
+        phases.append(leg.loop.phase)
+        if leg.loop.phase is not Phase.WAIT_NODES:
+            break
+    # the first tick hears every node: INACTIVE and ARMING in that tick, the arming frames sent in it
+    assert phases == [Phase.ARMING]
+    assert leg.loop.supervisor.phase_t_s == 0.0
+    assert leg.sent("Set_Axis_State") == 2 and leg.sent("Set_Input_Pos") == 2 and leg.sent("Clear_Errors") == 0
+
+
+def test_auto_arm_does_not_rearm_after_a_disarm():
+    leg = Leg(auto_arm=True)
+    for _ in range(100):
+        leg.tick()
+        leg.follow()
+    assert leg.loop.phase is Phase.RAMP
+    assert leg.loop.request_disarm(leg.t) is None
+    for _ in range(500):
+        leg.tick()
+        leg.follow()
+    assert leg.loop.phase is Phase.INACTIVE
+
+
+def test_disarm_goes_back_to_inactive_with_the_axes_idle():
+    leg = Leg()
+    leg.tick()
+    leg.loop.request_arm(leg.t)
+    for _ in range(800):
+        leg.tick()
+        leg.follow()
+    assert leg.loop.phase is Phase.WALK
+    steps = len(leg.loop.stats.steps)
+    n_pos = leg.sent("Set_Input_Pos")
+    assert leg.loop.request_disarm(leg.t) is None
+    assert leg.loop.phase is Phase.INACTIVE and leg.loop.supervisor.fault_cause == ""
+    idle = C.codec("Set_Axis_State").pack(int(AxisState.IDLE))
+    last = {m.arbitration_id: m.data for m in leg.bus.sent}
+    assert all(last[C.odrive_id(n, "Set_Axis_State")] == idle for n in (0, 1))
+    leg.follow()
+    leg.tick(200)
+    assert leg.loop.phase is Phase.INACTIVE and leg.sent("Set_Input_Pos") == n_pos  # no target after the disarm
+    assert len(leg.loop.stats.steps) == steps and leg.sent("Clear_Errors") == 0
+    assert all(s is AxisState.IDLE for s in leg.states.values())
+    # a second disarm is refused; the leg arms again and walks
+    assert "not armed" in leg.loop.request_disarm(leg.t)
+    assert leg.loop.request_arm(leg.t) is None
+    for _ in range(800):
+        leg.tick()
+        leg.follow()
+    assert leg.loop.phase is Phase.WALK
+
+
+def test_an_arm_is_refused_while_an_axis_is_not_idle_blocked_or_a_node_silent():
+    leg = Leg()
+    leg.tick(3)
+    leg.states[0] = AxisState.CLOSED_LOOP_CONTROL  # someone left it armed
+    leg.tick(1)
+    assert "hip: CLOSED_LOOP_CONTROL" in leg.loop.request_arm(leg.t)
+    leg.follow()  # INACTIVE sent it IDLE
+    assert leg.states[0] is AxisState.IDLE and leg.sent("Set_Axis_State", 0) >= 1
+    leg.tick(1)
+    leg.loop.arm_blocked = "calibration not confirmed"
+    assert leg.loop.request_arm(leg.t) == "calibration not confirmed"
+    assert leg.loop.status()["arm_blocked"] == "calibration not confirmed"
+    leg.loop.arm_blocked = None
+    assert leg.loop.request_arm(leg.t) is None
+    assert "only from inactive" in leg.loop.request_arm(leg.t)
+
+
+def test_a_silent_node_in_inactive_is_a_fault():
+    leg = Leg()
+    leg.tick(3)
+    assert leg.loop.phase is Phase.INACTIVE
+    leg.quiet.add(1)
+    leg.tick(300)
+    assert leg.loop.phase is Phase.FAULT and "knee" in leg.loop.supervisor.fault_cause
+
+
+def test_an_axis_error_while_arming_is_a_fault_named():
+    leg = Leg()
+    leg.tick(2)
+    leg.loop.request_arm(leg.t)
+    leg.errors[0] = int(AxisError.DRV_FAULT)
+    leg.tick(2)
+    assert leg.loop.phase is Phase.FAULT
+    assert "hip" in leg.loop.supervisor.fault_cause and "DRV_FAULT" in leg.loop.supervisor.fault_cause
+
+
+def test_estop_sends_estop_to_every_axis_and_latches_fault():
+    leg = Leg()
+    leg.tick(3)
+    leg.loop.request_arm(leg.t)
+    for _ in range(50):
+        leg.tick()
+        leg.follow()
+    assert leg.loop.request_estop(leg.t) is None
+    assert leg.sent("Estop", 0) == 1 and leg.sent("Estop", 1) == 1
+    assert all(m.dlc == 0 for m in leg.bus.sent if (m.arbitration_id & 0x1F) == 0x002)
+    assert leg.loop.phase is Phase.FAULT and leg.loop.supervisor.fault_cause == "estop by operator"
+    assert leg.loop.lifecycle == "fault"
+    leg.errors = {0: ESTOP, 1: ESTOP}
+    leg.tick(500)
+    assert leg.loop.phase is Phase.FAULT  # latched
+    assert leg.loop.request_arm(leg.t) is not None
+    assert leg.sent("Clear_Errors") == 0
+
+
+def test_clear_faults_sends_clear_errors_and_leaves_fault_for_wait_nodes(caplog):
+    leg = Leg()
+    leg.tick(3)
+    leg.loop.request_estop(leg.t)
+    leg.errors = {0: ESTOP, 1: ESTOP}
+    leg.tick(10)
+    caplog.set_level(logging.WARNING, logger="controller.loop")
+    assert leg.loop.request_clear_faults(leg.t) is None
+    assert leg.sent("Clear_Errors", 0) == 1 and leg.sent("Clear_Errors", 1) == 1
+    assert leg.loop.phase is Phase.WAIT_NODES and leg.loop.supervisor.fault_cause == ""
+    assert sum("ESTOP_REQUESTED" in r.getMessage() and "Clear_Errors" in r.getMessage() for r in caplog.records) == 2
+    leg.errors = {0: 0, 1: 0}  # the drivers cleared them
+    leg.tick(2)
+    assert leg.loop.phase is Phase.INACTIVE
+    assert leg.loop.request_arm(leg.t) is None
+    # refused while armed
+    assert "disarm first" in leg.loop.request_clear_faults(leg.t)
+    assert leg.sent("Clear_Errors") == 2
+
+
+def test_clear_faults_waits_for_heartbeats_after_the_clearing():
+    leg = Leg()
+    leg.tick(3)
+    leg.loop.request_estop(leg.t)
+    leg.tick(1)
+    leg.loop.request_clear_faults(leg.t - 1e-9)
+    leg.tick(1, feedback=False)
+    assert leg.loop.phase is Phase.WAIT_NODES  # the heartbeats it has are from before the clearing
+    leg.tick(1)
+    assert leg.loop.phase is Phase.INACTIVE
+
+
+def test_another_master_is_a_fault_within_the_tick_that_drains_its_first_frame():
+    for phase_ticks, arm in ((0, False), (3, False), (3, True)):
+        leg = Leg()
+        leg.tick(phase_ticks)
+        if arm:
+            leg.loop.request_arm(leg.t)
+            leg.tick()
+        rogue = C.odrive_id(0, "Set_Axis_State")
+        leg.bus.push(data_frame(rogue, C.codec("Set_Axis_State").pack(int(AxisState.CLOSED_LOOP_CONTROL))),
+                     data_frame(rogue, C.codec("Set_Axis_State").pack(int(AxisState.CLOSED_LOOP_CONTROL))))
+        leg.tick()
+        assert leg.loop.phase is Phase.FAULT, phase_ticks
+        assert leg.loop.supervisor.fault_cause == "another master on the bus: id 0x007, 2 frame(s)"
+        assert leg.loop.supervisor.fault_t_s == pytest.approx(leg.t - leg.loop.config.period_s)
+
+
+def test_another_master_after_clearing_faults_again():
+    leg = Leg()
+    leg.tick(3)
+    leg.bus.push(data_frame(C.odrive_id(1, "Estop"), b""))
+    leg.tick()
+    assert "id 0x022, 1 frame(s)" in leg.loop.supervisor.fault_cause
+    leg.loop.request_clear_faults(leg.t)
+    leg.tick(3)
+    assert leg.loop.phase is Phase.INACTIVE  # the old frame is not counted again
+    leg.bus.push(data_frame(C.odrive_id(0, "Set_Limits"), b"\x00" * 8))
+    leg.tick()
+    assert leg.loop.supervisor.fault_cause == "another master on the bus: id 0x00f, 1 frame(s)"
+
+
+def test_status_is_json_serialisable_in_every_phase():
+    leg = Leg()
+    st = leg.loop.status()
+    assert st["phase"] == "wait_nodes" and st["axes"]["hip"]["pos_rad"] is None and st["fault_t_s"] is None
+    assert st["axes"]["hip"]["bus_voltage_v"] is None
+    leg.bus.push(data_frame(C.odrive_id(0, "Get_Bus_Voltage_Current"),
+                            C.codec("Get_Bus_Voltage_Current").pack(24.0, 0.5)))
+    leg.tick(3)
+    leg.loop.request_estop(leg.t)
+    st = json.loads(json.dumps(leg.loop.status(), allow_nan=False))
+    assert st["phase"] == "fault" and st["lifecycle"] == "fault" and st["fault_cause"] == "estop by operator"
+    assert st["axes"]["hip"]["bus_voltage_v"] == pytest.approx(24.0) and st["axes"]["knee"]["bus_voltage_v"] is None
+    assert st["axes"]["hip"]["state"] == "IDLE" and math.isfinite(st["axes"]["hip"]["pos_rad"])
+    assert set(st) == {"phase", "lifecycle", "fault_cause", "fault_t_s", "axes", "ticks", "late_ticks",
+                       "max_period_s", "steps", "reflexes", "arm_blocked"}
