@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from controller.io.axis import AxisConfig
+from controller.io.health import HealthConfig
 from controller.motion.cpg import CpgConfig
 from controller.motion.gait import GaitConfig
 from controller.motion.kinematics import LegGeometry
@@ -31,7 +32,8 @@ def default_axes() -> tuple[AxisConfig, AxisConfig]:
 @dataclass(frozen=True)
 class ControllerConfig:
     """The whole controller: the hip and knee axes, the model's parts (``geometry``, ``cpg``,
-    ``gait``, ``range_filter``, ``encoder``, ``learner``, ``height``, ``reflexes``), and the loop and
+    ``gait``, ``range_filter``, ``encoder``, ``learner``, ``height``, ``reflexes``), the drivers'
+    runtime health bounds (``health``, :mod:`controller.io.health`), and the loop and
     supervision settings declared below.
 
     ``sensor_node_id`` is the bus contract's :data:`protocol.SENSOR_BOARD_NODE_ID`, not a setting.
@@ -56,6 +58,7 @@ class ControllerConfig:
     learner: LearnerConfig = LearnerConfig()
     height: HeightEstimatorConfig = HeightEstimatorConfig()
     reflexes: ReflexConfig = ReflexConfig()
+    health: HealthConfig = HealthConfig()
     sensor_node_id: int = SENSOR_BOARD_NODE_ID
     heartbeat_period_s: float = setting(
         0.1, "s", 0.001, 10.0, "the nodes' heartbeat period (ODrive axis.config.can.heartbeat_msg_rate_ms / 1000)")

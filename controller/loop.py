@@ -46,8 +46,10 @@ from controller.stepping.premotor import Premotor
 from controller.stepping.range_filter import RangeFilter
 from controller.stepping.reflexes import ContactReflexes, Reflex, lift_amplitude
 from controller.io.sensors import SensorLink
+from controller.settings.file import DriverSettings
 from controller.supervisor import ACTIVE_PHASES, Phase, Supervisor, error_names, error_text
 from protocol import AxisState, BusContract, ControlMode, InputMode
+from protocol.endpoints import WATCHDOG_TIMEOUT
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +107,7 @@ class ControlLoop:
         self.sensors = SensorLink(config.sensor_node_id)
         self.io = BusIO(bus, contract, self.axes, self.sensors)
         self.supervisor = Supervisor(self.axes, self.sensors, config.heartbeat_timeout_s, config.bringup_timeout_s,
-                                     config.stale_heartbeat_s)
+                                     config.stale_heartbeat_s, health=config.health)
         self.cpg = RingOscillator(config.cpg)
         self.encoder = RangeEncoder(config.encoder)
         self.range_filter = RangeFilter(config.range_filter)
@@ -130,6 +132,13 @@ class ControlLoop:
         self._foreign_snapshot: Counter[int] = Counter()
         self._auto_arm_pending = False
         self._last_refusal: str | None = None
+        # The drivers' command watchdog written at arming (RxSdo) and read back: the deploy file's
+        # [drivers] watchdog_timeout_s, which the daemon sets here; its default otherwise.
+        self.drivers_watchdog_timeout_s: float = DriverSettings().watchdog_timeout_s
+        self._watchdog_written_at = math.nan  # phase_t_s of the arming it was written for
+        txsdo = contract.codec("TxSdo")
+        for a in self.axes:  # the read-backs: TxSdo from each axis to AxisLink.on_txsdo
+            self.io.listen(a.txsdo_id, txsdo, a.on_txsdo)
 
     @property
     def phase(self) -> Phase:
@@ -159,6 +168,7 @@ class ControlLoop:
             self._another_master(now_s)
         before = sup.phase
         sup.update(now_s)
+        sup.check_watchdog_confirmations(now_s)
         phase = sup.phase
         if phase is Phase.INACTIVE:
             if before is Phase.WAIT_NODES:
@@ -310,16 +320,33 @@ class ControlLoop:
                 self.io.send(a.state_frame(AxisState.IDLE))
 
     def _arm(self, now_s: float) -> None:
-        if self.supervisor.arm_due(now_s):
+        sup = self.supervisor
+        if sup.arm_due(now_s):
+            # The drivers' watchdog timeout: written and read back once per arming, with its first
+            # frames and before the closed-loop request; the reply is checked when it comes
+            # (Supervisor.check_watchdog_confirmations), arming never waits for it.
+            first = self._watchdog_written_at != sup.phase_t_s
+            self._watchdog_written_at = sup.phase_t_s
             for a in self.axes:
                 if not a.closed_loop:
                     self.io.send(a.mode_frame(ControlMode.POSITION_CONTROL, InputMode.PASSTHROUGH))
                     self.io.send(a.limits_frame())
+                if first:
+                    self._write_watchdog(a, now_s)
+                if not a.closed_loop:
                     self.io.send(a.state_frame(AxisState.CLOSED_LOOP_CONTROL))
         # hold the measured position (an armed axis then stays put, and its watchdog is fed)
         for a in self.axes:
             self.io.send(a.pos_frame(a.pos_rad))
         self.stats.command_ticks += 1
+
+    def _write_watchdog(self, a: AxisLink, now_s: float) -> None:
+        """RxSdo: write ``drivers_watchdog_timeout_s`` to the axis's axis0.config.watchdog_timeout,
+        then read it back (endpoint id from protocol.endpoints: UNVERIFIED)."""
+        value = self.drivers_watchdog_timeout_s
+        self.io.send(a.sdo_write_frame(WATCHDOG_TIMEOUT, value))
+        self.io.send(a.sdo_read_frame(WATCHDOG_TIMEOUT))
+        self.supervisor.expect_watchdog(a, value, now_s)
 
     def _ramp(self, now_s: float) -> None:
         ramp_s = self.config.gait.ramp_s

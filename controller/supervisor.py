@@ -19,11 +19,18 @@ ARMING         active       Set_Controller_Mode(POSITION_CONTROL, PASSTHROUGH), 
                             CLOSED_LOOP_CONTROL with no error (-> RAMP). Never Clear_Errors: an
                             axis with a latched error is refused at the arm command, and an
                             axis that reports an error while arming, a silent node, or no closed
-                            loop after ``bringup_timeout_s`` is a FAULT.
+                            loop after ``bringup_timeout_s`` is a FAULT. With the first arming
+                            frames each axis is also sent RxSdo writing the drivers' watchdog
+                            timeout (``ControlLoop.drivers_watchdog_timeout_s``: the deploy file's
+                            ``[drivers] watchdog_timeout_s``) and reading it back; arming never
+                            waits for the TxSdo reply, but a reply with another value, or none
+                            within 0.5 s, is a FAULT (:meth:`Supervisor.check_watchdog_confirmations`).
 RAMP           active       a smooth move from the pose found at arming to the gait's start pose.
 WALK           active       the CPG runs.
-FAULT          fault        an axis left closed loop or reported an error while armed, a node
-                            went silent, another master commanded our nodes, or the operator's
+FAULT          fault        an axis left closed loop or reported an error while armed (its
+                            heartbeat's error, by name, in the tick it arrives), a driver's
+                            health reading beyond its bound in an active phase
+                            (:mod:`controller.io.health`), a node went silent, another master commanded our nodes, or the operator's
                             Estop: every axis is sent IDLE (repeated each heartbeat period), no
                             position target is sent again and learning is paused (the premotor
                             hears no more gates or reflexes). The cause and the time are kept
@@ -52,8 +59,11 @@ import logging
 import math
 
 from controller.io.axis import AxisLink
+from controller.io.health import HealthConfig, health_fault
 from controller.io.sensors import SensorLink
-from protocol import AxisError
+from protocol.contract import sdo_bits_value, sdo_value_bits
+from protocol.endpoints import WATCHDOG_TIMEOUT
+from protocol import AxisError, AxisState
 
 log = logging.getLogger(__name__)
 
@@ -97,8 +107,11 @@ class Supervisor:
     ARM_RETRY_S = 0.5
 
     def __init__(self, axes: list[AxisLink], sensors: SensorLink, silence_timeout_s: float,
-                 bringup_timeout_s: float, stale_heartbeat_s: float = math.inf) -> None:
+                 bringup_timeout_s: float, stale_heartbeat_s: float = math.inf,
+                 health: HealthConfig = HealthConfig()) -> None:
         self.axes = axes
+        self.pending_watchdog: dict[str, tuple[AxisLink, float, float]] = {}  # name -> (axis, written, sent at)
+        self.health = health
         self.sensors = sensors
         self.silence_timeout_s = silence_timeout_s
         self.stale_heartbeat_s = max(stale_heartbeat_s, silence_timeout_s)
@@ -168,6 +181,12 @@ class Supervisor:
         if math.isnan(self.phase_t_s):
             self.phase_t_s = now_s
         phase = self.phase
+        if phase in ACTIVE_PHASES:
+            for a in self.axes:  # the drivers' health readings against their bounds
+                cause = health_fault(self.health, a)
+                if cause is not None:
+                    self.fault(cause, now_s)
+                    return
         if phase is Phase.WAIT_NODES:
             after = self.heard_after_s
             heard = all(now_s - beat <= self.silence_timeout_s and beat > after for _, _, beat in self._last_seen())
@@ -195,9 +214,47 @@ class Supervisor:
             if self._fault_if_silent(now_s):
                 return
             for a in self.axes:
-                if not a.closed_loop:
-                    self.fault(f"axis {a.name} left closed loop: state {a.state.name}, error {a.error:#x}", now_s)
+                if a.error and a.state is AxisState.CLOSED_LOOP_CONTROL:  # acted on in the tick it is drained
+                    self.fault(f"axis {a.name} reported {error_text(a.error)} in closed loop", now_s)
                     return
+                if not a.closed_loop:
+                    self.fault(f"axis {a.name} left closed loop: state {a.state.name}, error {error_text(a.error)}", now_s)
+                    return
+
+    # -- the drivers' watchdog timeout, written with the arming frames and read back ---------------
+    SDO_REPLY_TIMEOUT_S = 0.5
+    """A read-back (TxSdo) not received this long after the RxSdo read is a FAULT [s]."""
+
+    def expect_watchdog(self, axis: AxisLink, written_s: float, now_s: float) -> None:
+        """``axis`` was sent RxSdo writing ``written_s`` (as the float32 on the bus) to
+        axis0.config.watchdog_timeout and a read of it at ``now_s``: :meth:`check_watchdog_confirmations`
+        checks the reply when it comes. Arming does not wait for it."""
+        self.pending_watchdog[axis.name] = (axis, sdo_bits_value(sdo_value_bits(written_s)), now_s)
+
+    def check_watchdog_confirmations(self, now_s: float) -> None:
+        """Each expected read-back: the same value confirms it (logged); another value, or none
+        within :attr:`SDO_REPLY_TIMEOUT_S`, is a latched FAULT. Outside the active phases the
+        expectations are dropped (a disarm or a fault ends the arming they belonged to)."""
+        pending = self.pending_watchdog
+        if not pending:
+            return
+        if self.phase not in ACTIVE_PHASES:
+            pending.clear()
+            return
+        for name, (axis, written, sent_s) in list(pending.items()):
+            read = axis.sdo_reply(WATCHDOG_TIMEOUT, since_s=sent_s)
+            if read is not None:
+                del pending[name]
+                if read != written:
+                    pending.clear()
+                    self.fault(f"watchdog timeout not confirmed: {name} wrote {written:g} s, read {read:g} s", now_s)
+                    return
+                log.info("watchdog timeout confirmed: %s reads %g s", name, read)
+            elif now_s - sent_s > self.SDO_REPLY_TIMEOUT_S:
+                pending.clear()
+                self.fault(f"watchdog timeout not confirmed: {name} wrote {written:g} s, no reply within "
+                           f"{self.SDO_REPLY_TIMEOUT_S:g} s", now_s)
+                return
 
     def arm_due(self, now_s: float) -> bool:
         if now_s - self.last_arm_request_s >= self.ARM_RETRY_S:

@@ -18,6 +18,7 @@ from firmware_sim.node_host import NodeHost
 from firmware_sim.odrive_axis import DriverConfig, SimOdriveAxis
 from firmware_sim.plant import RigConfig, RigPlant
 from firmware_sim.sensor_board import SensorBoard, SensorBoardConfig
+from firmware_sim.thermal import ThermalModel, ThermalParams
 
 
 @dataclass(frozen=True)
@@ -29,8 +30,12 @@ class LegHardware:
         gear_ratio: motor revolutions per joint revolution (both joints); default 6.0.
         hip_direction, knee_direction: sign from joint to motor angle; defaults +1 and -1.
         hip_zero_offset_rev, knee_zero_offset_rev: motor reading at joint angle 0 [rev]; 0.0.
-        driver: the ODrive axis settings shared by both axes (node_id is overridden).
+        driver: the ODrive axis settings shared by both axes (node_id is overridden); by
+            default they send their health readings (Get_Temperature, Get_Bus_Voltage_Current,
+            Get_Iq) every 0.1 s, as ``[health] read_period_s`` expects.
         motor: the motor model shared by both axes.
+        thermal: each axis's thermal and supply model (ambient, source voltage, ...;
+            :mod:`firmware_sim.thermal`).
         sensor: the sensor board's settings.
     """
 
@@ -41,8 +46,9 @@ class LegHardware:
     knee_direction: int = -1
     hip_zero_offset_rev: float = 0.0
     knee_zero_offset_rev: float = 0.0
-    driver: DriverConfig = field(default_factory=lambda: DriverConfig(node_id=0))
+    driver: DriverConfig = field(default_factory=lambda: DriverConfig(node_id=0, health_period_s=0.1))
     motor: MotorParams = MotorParams()
+    thermal: ThermalParams = ThermalParams()
     sensor: SensorBoardConfig = SensorBoardConfig()
 
 
@@ -60,7 +66,8 @@ class SimulatedLeg:
             tr = Transmission(gear_ratio=hardware.gear_ratio, direction=direction, zero_offset_rev=offset)
             lo, hi = (tr.joint_to_motor_rev(q) for q in self.plant.joint_limits_rad[name])
             driver = replace(hardware.driver, node_id=node_id, pos_min_rev=min(lo, hi), pos_max_rev=max(lo, hi))
-            self.axes[name] = SimOdriveAxis(driver, MotorJoint(self.plant, name, tr, hardware.motor))
+            self.axes[name] = axis = SimOdriveAxis(driver, MotorJoint(self.plant, name, tr, hardware.motor))
+            axis.thermal = ThermalModel(axis.motor, hardware.thermal)
         self.board = SensorBoard(hardware.sensor, self.plant, np.random.default_rng(seed))
         self.host = NodeHost(bus, [*self.axes.values(), self.board])
         self.dt_s = self.plant.dt_s

@@ -16,9 +16,42 @@ Behaviour, and where the simulation simplifies the firmware:
   MOTOR_CALIBRATION, ENCODER_*, LOCKIN_SPIN, HOMING, ...) complete instantly and successfully
   and return to IDLE. UNDEFINED and unknown state numbers are ignored (``stats["unsupported"]``).
 - **Modes.** VOLTAGE_CONTROL and unknown control/input mode numbers are ignored
-  (``stats["unsupported"]``). Every valid input mode is recorded but behaves as PASSTHROUGH
-  (no filters or trajectories), so Trajectory_Done_Flag is always 1. A change of control mode
-  while in closed loop re-bases the position input on the current position (no jump).
+  (``stats["unsupported"]``). Every valid input mode is recorded; all but TRAP_TRAJ behave as
+  PASSTHROUGH (no filters). A change of control mode while in closed loop re-bases the position
+  input on the current position (no jump).
+- **TRAP_TRAJ** (input mode 5, position control, closed loop): each Set_Input_Pos plans ODrive's
+  trapezoidal move (:class:`firmware_sim.trajectory.TrapezoidalTrajectory`: accelerate, cruise,
+  decelerate) from the setpoint (at rest: the last target or the position held at arming; during
+  a move: where the move is now, with its velocity) to the target, with the limits of
+  Set_Traj_Vel_Limit and Set_Traj_Accel_Limits (ODrive's defaults 2 rev/s, 0.5 rev/s²) at that
+  moment; the move's position and velocity are the cascade's setpoints and its acceleration
+  times Set_Traj_Inertia (default 0) the torque feed-forward (Vel_FF and Torque_FF are ignored).
+  Heartbeat.Trajectory_Done_Flag is 0 while a move runs and 1 otherwise (always 1 outside
+  TRAP_TRAJ). A change of input or control mode, IDLE, a disarm or entering closed loop ends a
+  move; the position input stays its target. Limits must be finite and > 0 (inertia >= 0),
+  else the frame is malformed.
+- **SDO** (RxSdo / TxSdo): the endpoints of :mod:`protocol.endpoints` (ids UNVERIFIED, the gains'
+  and input mode's placeholders) served here: axis0.config.watchdog_timeout and enable_watchdog
+  (a write changes the timeout the watchdog enforces at once), axis0.controller.config.input_mode,
+  pos_gain, vel_gain, vel_integrator_gain (as Set_Controller_Mode / Set_*_Gain would),
+  axis0.requested_state (write: as Set_Axis_State), and read-only axis0.current_state,
+  pos_estimate, vel_estimate, config.can.node_id (a write is ``stats["unsupported"]``). Opcode 0
+  (read) is answered with TxSdo carrying the value (``stats["sdo_reads"]``); opcode 1 (write)
+  with nothing (``stats["sdo_writes"]``); another opcode or a value the endpoint refuses is
+  malformed. An endpoint not served (the DC-bus trip levels included) is answered with nothing,
+  as ODrive does, and counted in ``stats["sdo_unknown_endpoint"]``. The watchdog settings and the
+  trajectory limits are configuration: save_configuration keeps them, a reboot restores the saved
+  ones.
+- **Address** (0x006): an RTR or empty frame to the node is answered with Address carrying the
+  node id and the board's 48-bit serial number (``DriverConfig.serial_number``, by default
+  :func:`default_serial_number` of the node id: stable per board). The node-id assignment form
+  (a payload) is not simulated (malformed), nor the broadcast node id 0x3F (the node host routes
+  by node id).
+- **Enter_DFU_Mode** is refused: no effect, counted in ``stats["dfu_refused"]``.
+- **Set_Axis_State** accepts the DBC's 8 bytes and the 4 ODrive's own example sends (the
+  contract's :data:`protocol.contract.SHORT_FRAMES`).
+- **Versions**: Get_Version reports an ODrive Pro, hardware 4.4 variant 58, with firmware 0.6.10
+  (see :class:`DriverConfig`).
 - **Cascade** (motor side: rev, rev/s, N·m). Position mode:
   ``vel_des = input_vel + pos_gain * (input_pos - pos)``; velocity mode: ``vel_des = input_vel``;
   in both, ``vel_des`` is clamped to ±vel_limit (ODrive's ``enable_vel_limit``) and
@@ -69,9 +102,13 @@ Behaviour, and where the simulation simplifies the firmware:
   forgets a Set_Absolute_Position offset.
 - **Set_Absolute_Position** sets the position estimate to the given value at the current
   shaft position; in closed loop the position input is shifted by the same amount (no jump).
-- **Temperatures** are constant (25 °C FET and motor): no thermal model.
-- **Malformed / unknown.** A payload shorter than the DBC's length (Clear_Errors may be 0 or 1
-  byte, Estop any length, Reboot 0 bytes means action 0), an unknown command id, an extended
+- **Health readings.** Get_Temperature and Get_Bus_Voltage_Current come from the axis's
+  :class:`~firmware_sim.thermal.ThermalModel` (``thermal``: motor and FET temperatures from the
+  applied current, a bus voltage that sags under load), stepped in :meth:`update`; it never acts
+  on the physics. With ``health_period_s > 0`` they and Get_Iq are also sent cyclically, as
+  ODrive's ``temperature_msg_rate_ms``, ``bus_voltage_msg_rate_ms`` and ``iq_msg_rate_ms`` do.
+- **Malformed / unknown.** A payload shorter than the contract allows (its DBC length, less for
+  :data:`protocol.contract.SHORT_FRAMES`; Reboot 0 bytes means action 0), an unknown command id, an extended
   id or an error frame is counted and ignored. :meth:`handle` never raises; an internal failure
   is counted in ``stats["internal_errors"]``.
 """
@@ -79,6 +116,7 @@ Behaviour, and where the simulation simplifies the firmware:
 from __future__ import annotations
 
 import enum
+import hashlib
 import math
 from dataclasses import dataclass
 from typing import Callable
@@ -86,6 +124,8 @@ from typing import Callable
 import can
 
 from firmware_sim.motor import MotorJoint
+from firmware_sim.thermal import ThermalModel
+from firmware_sim.trajectory import TrapezoidalTrajectory
 from protocol.contract import (
     CMD_ID_MASK,
     MAX_NODE_ID,
@@ -93,14 +133,17 @@ from protocol.contract import (
     BusContract,
     MessageCodec,
     arbitration_id,
+    sdo_bits_value,
+    sdo_value_bits,
 )
+from protocol.endpoints import BY_ID as ENDPOINTS_BY_ID
+from protocol.endpoints import SDO_OPCODE_READ, SDO_OPCODE_WRITE, Endpoint
 from protocol.frame import data_frame
 from protocol.odrive import AxisError, AxisState, Cmd, ControlMode, InputMode
 
 PROTOCOL_VERSION = 2
 """Get_Version.Protocol_Version reported by firmware 0.6."""
 
-AMBIENT_TEMPERATURE_C = 25.0
 _SCHEDULE_EPS_S = 1e-9
 
 
@@ -122,8 +165,9 @@ class RebootAction(enum.IntEnum):
     ENTER_DFU_MODE = 3
 
 
+# SENSORLESS_CONTROL (a control state, not a procedure) is not simulated: "unsupported".
 _INSTANT_PROCEDURES = frozenset(
-    s for s in AxisState if s not in (AxisState.UNDEFINED, AxisState.IDLE, AxisState.CLOSED_LOOP_CONTROL)
+    s for s in AxisState if s.name not in ("UNDEFINED", "IDLE", "CLOSED_LOOP_CONTROL", "SENSORLESS_CONTROL")
 )
 _GET_CMDS = (
     Cmd.GET_VERSION,
@@ -136,14 +180,32 @@ _GET_CMDS = (
     Cmd.GET_TORQUES,
     Cmd.GET_POWERS,
 )
-# Commands whose payload may be shorter than the DBC length: minimum accepted length.
-_MIN_LEN_OVERRIDE = {Cmd.ESTOP: 0, Cmd.CLEAR_ERRORS: 0, Cmd.REBOOT: 0}
+# The shortest payload accepted is the contract's rule (protocol.contract.SHORT_FRAMES:
+# Set_Axis_State 4 bytes as ODrive's own example sends it, RxSdo 4-6, Clear_Errors and Reboot 0).
+
+# Messages added with ODrive's 0.6.10 DBC, addressed by name (protocol.odrive.Cmd does not name them).
+_RXSDO, _TXSDO, _ADDRESS = "RxSdo", "TxSdo", "Address"
+_SET_TRAJ_VEL_LIMIT, _SET_TRAJ_ACCEL_LIMITS = "Set_Traj_Vel_Limit", "Set_Traj_Accel_Limits"
+_SET_TRAJ_INERTIA, _ENTER_DFU_MODE = "Set_Traj_Inertia", "Enter_DFU_Mode"
+
+# ODrive's trap_traj.config defaults (firmware 0.6): vel_limit 2 rev/s, accel/decel 0.5 rev/s^2, inertia 0.
+TRAJ_VEL_LIMIT_DEFAULT = 2.0
+TRAJ_ACCEL_LIMIT_DEFAULT = 0.5
+TRAJ_DECEL_LIMIT_DEFAULT = 0.5
+TRAJ_INERTIA_DEFAULT = 0.0
+
+
+def default_serial_number(node_id: int) -> int:
+    """A stable 48-bit serial number for the simulated board at ``node_id`` (the same every run)."""
+    digest = hashlib.sha256(f"elegant-stepping simulated ODrive, node {node_id}".encode()).digest()
+    return int.from_bytes(digest[:6], "little")
 
 # Enum members used on the per-step hot path, bound once: ``AxisState.CLOSED_LOOP_CONTROL`` is a
 # class-attribute lookup through the enum machinery (~0.2 us each on Python 3.11).
 _CLOSED_LOOP = AxisState.CLOSED_LOOP_CONTROL
 _TORQUE_CONTROL = ControlMode.TORQUE_CONTROL
 _POSITION_CONTROL = ControlMode.POSITION_CONTROL
+_TRAP_TRAJ = InputMode.TRAP_TRAJ
 
 
 def _finite(*values: float) -> bool:
@@ -170,6 +232,9 @@ class DriverConfig:
     ``encoder_period_s``        s              ``0.002``         Get_Encoder_Estimates period;
                                                                  0 disables
     ``watchdog_timeout_s``      s              ``0.1``           command watchdog; 0 disables
+    ``health_period_s``         s              ``0.0``           Get_Temperature, Get_Bus_Voltage_
+                                                                 Current and Get_Iq period; 0
+                                                                 disables (ODrive's default)
     ``pos_min_rev``             rev            ``None``          lower joint limit, motor side; None:
                                                                  unbounded
     ``pos_max_rev``             rev            ``None``          upper joint limit, motor side; None:
@@ -184,9 +249,17 @@ class DriverConfig:
                                                                  stop at full torque
     ``fw_version``              –              ``(0, 6, 10)``    (major, minor, revision) in
                                                                  Get_Version
-    ``hw_version``              –              ``(3, 6, 56)``    (major, minor, variant) in
-                                                                 Get_Version
+    ``hw_version``              –              ``(4, 4, 58)``    (major, minor, variant) in
+                                                                 Get_Version: ODrive Pro v4.4-58V
+    ``serial_number``           –              ``None``          48-bit serial number in Address;
+                                                                 None: :func:`default_serial_number`
+                                                                 of the node id (stable per board)
     ==========================  =============  ================  ======================================
+
+    The version pairing is one that exists for firmware 0.6.10: an ODrive Pro, hardware 4.4
+    variant 58, as the ``odrive`` PyPI package 0.6.11.post1 describes the board in
+    ``odrive/data/odrive-v4.4.json`` (``{"name": "ODrive Pro v4.4-58V", "hw_version": [4, 4, 58]}``),
+    running firmware 0.6.10.
     """
 
     node_id: int
@@ -197,11 +270,13 @@ class DriverConfig:
     heartbeat_period_s: float = 0.1
     encoder_period_s: float = 0.002
     watchdog_timeout_s: float = 0.1
+    health_period_s: float = 0.0
     pos_min_rev: float | None = None
     pos_max_rev: float | None = None
     pos_limit_margin_rev: float = 0.02
     fw_version: tuple[int, int, int] = (0, 6, 10)
-    hw_version: tuple[int, int, int] = (3, 6, 56)
+    hw_version: tuple[int, int, int] = (4, 4, 58)
+    serial_number: int | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.node_id <= MAX_NODE_ID or self.node_id == SENSOR_BOARD_NODE_ID:
@@ -214,6 +289,7 @@ class DriverConfig:
             "heartbeat_period_s",
             "encoder_period_s",
             "watchdog_timeout_s",
+            "health_period_s",
             "pos_limit_margin_rev",
         ):
             value = getattr(self, name)
@@ -229,6 +305,9 @@ class DriverConfig:
             value = getattr(self, name)
             if len(value) != 3 or not all(isinstance(v, int) and 0 <= v <= 255 for v in value):
                 raise ValueError(f"{name} must be three integers 0..255, got {value!r}")
+        if self.serial_number is not None and not (
+                isinstance(self.serial_number, int) and 0 <= self.serial_number < 1 << 48):
+            raise ValueError(f"serial_number must be a 48-bit unsigned integer or None, got {self.serial_number!r}")
 
 
 @dataclass
@@ -240,6 +319,12 @@ class _Tunables:
     vel_integrator_gain: float
     vel_limit_rev_s: float
     current_limit_a: float
+    watchdog_timeout_s: float = 0.0
+    enable_watchdog: bool = False
+    traj_vel_limit: float = TRAJ_VEL_LIMIT_DEFAULT
+    traj_accel_limit: float = TRAJ_ACCEL_LIMIT_DEFAULT
+    traj_decel_limit: float = TRAJ_DECEL_LIMIT_DEFAULT
+    traj_inertia: float = TRAJ_INERTIA_DEFAULT
 
 
 class SimOdriveAxis:
@@ -254,7 +339,10 @@ class SimOdriveAxis:
     - ``torque_setpoint_nm`` (after limiting), ``vel_integrator_nm``;
     - ``stats``: ``{"rx": {name: n}, "tx": {name: n}, "malformed", "unknown", "unsupported",
       "foreign", "internal_errors", "targets_outside_limits", "estops", "watchdog_trips",
-      "position_limit_trips", "missing_estimate_trips"}``.
+      "position_limit_trips", "missing_estimate_trips", "sdo_reads", "sdo_writes", "sdo_unknown_endpoint",
+      "dfu_refused"}``;
+    - ``watchdog_timeout_s``, ``enable_watchdog`` (SDO), ``traj_vel_limit``, ``traj_accel_limit``,
+      ``traj_decel_limit``, ``traj_inertia`` (Set_Traj_*), ``trajectory_done``.
     """
 
     def __init__(self, config: DriverConfig, motor: MotorJoint, contract: BusContract | None = None) -> None:
@@ -264,7 +352,7 @@ class SimOdriveAxis:
         contract = contract if contract is not None else BusContract.load()
         self._codecs: dict[int, MessageCodec] = dict(contract.odrive)
         self._arb_ids = {cmd: arbitration_id(self.node_id, cmd) for cmd in self._codecs}
-        self._min_len = {cmd: _MIN_LEN_OVERRIDE.get(cmd, codec.dlc) for cmd, codec in self._codecs.items()}
+        self._min_len = {cmd: codec.min_length for cmd, codec in self._codecs.items()}
         self._kt = motor.params.torque_constant_nm_per_a
         self._hw_current_limit_a = motor.params.current_limit_a
 
@@ -282,6 +370,23 @@ class SimOdriveAxis:
             Cmd.SET_POS_GAIN: self._on_set_pos_gain,
             Cmd.SET_VEL_GAINS: self._on_set_vel_gains,
         }
+        # ODrive 0.6.10's SDO, trajectory and DFU commands, by name (see the module doc).
+        for name, handler in ((_RXSDO, self._on_rxsdo), (_SET_TRAJ_VEL_LIMIT, self._on_set_traj_vel_limit),
+                              (_SET_TRAJ_ACCEL_LIMITS, self._on_set_traj_accel_limits),
+                              (_SET_TRAJ_INERTIA, self._on_set_traj_inertia),
+                              (_ENTER_DFU_MODE, self._on_enter_dfu_mode)):
+            self._commands[contract.codec(name).cmd_id] = handler
+        self._rxsdo_cmd = contract.codec(_RXSDO).cmd_id
+        self._traj_vel_cmd = contract.codec(_SET_TRAJ_VEL_LIMIT).cmd_id
+        self._traj_accel_cmd = contract.codec(_SET_TRAJ_ACCEL_LIMITS).cmd_id
+        self._traj_inertia_cmd = contract.codec(_SET_TRAJ_INERTIA).cmd_id
+        self._sdo_reply: can.Message | None = None
+        self._sdo_now_s = 0.0
+        self._txsdo_codec = contract.codec(_TXSDO)
+        self._txsdo_cmd = self._txsdo_codec.cmd_id
+        self._sdo_endpoints = self._sdo_table()
+        self._serial_number = (config.serial_number if config.serial_number is not None
+                               else default_serial_number(config.node_id))
         self._getters: dict[int, Callable[[], tuple]] = {
             Cmd.GET_VERSION: self._version_values,
             Cmd.HEARTBEAT: self._heartbeat_values,
@@ -292,6 +397,7 @@ class SimOdriveAxis:
             Cmd.GET_BUS_VOLTAGE_CURRENT: self._bus_values,
             Cmd.GET_TORQUES: self._torque_values,
             Cmd.GET_POWERS: self._power_values,
+            contract.codec(_ADDRESS).cmd_id: self._address_values,
         }
         missing = (set(self._commands) | set(self._getters)) - set(self._codecs)
         if missing:
@@ -307,7 +413,7 @@ class SimOdriveAxis:
         # The config is frozen: its periods and timeout, read on every step, as plain attributes.
         self._hb_period_s = config.heartbeat_period_s
         self._enc_period_s = config.encoder_period_s
-        self._watchdog_timeout_s = config.watchdog_timeout_s
+        # The watchdog timeout in force (0: disabled) is set by _power_on and the SDO endpoints.
         # Position-limit trip bounds (estimate frame, margin included): one comparison per step.
         margin = config.pos_limit_margin_rev
         self._trip_min_rev = -math.inf if config.pos_min_rev is None else config.pos_min_rev - margin
@@ -329,6 +435,10 @@ class SimOdriveAxis:
             "watchdog_trips": 0,
             "position_limit_trips": 0,
             "missing_estimate_trips": 0,
+            "sdo_reads": 0,
+            "sdo_writes": 0,
+            "sdo_unknown_endpoint": 0,
+            "dfu_refused": 0,
         }
         self._rx = self.stats["rx"]
         self._tx = self.stats["tx"]
@@ -338,12 +448,16 @@ class SimOdriveAxis:
         self._saved = self._default_tunables()
         self._next_hb = -math.inf
         self._next_enc = -math.inf
+        self.thermal = ThermalModel(motor)  # firmware_sim.leg sets the leg's ThermalParams
+        self._health_period_s = config.health_period_s
+        self._next_health = -math.inf
         self._power_on()
 
     # ------------------------------------------------------------------ state
     def _default_tunables(self) -> _Tunables:
         c = self.config
-        return _Tunables(c.pos_gain, c.vel_gain, c.vel_integrator_gain, c.vel_limit_rev_s, self._hw_current_limit_a)
+        return _Tunables(c.pos_gain, c.vel_gain, c.vel_integrator_gain, c.vel_limit_rev_s, self._hw_current_limit_a,
+                         c.watchdog_timeout_s, c.watchdog_timeout_s > 0.0)
 
     def _power_on(self) -> None:
         s = self._saved
@@ -352,6 +466,16 @@ class SimOdriveAxis:
         self.vel_integrator_gain = s.vel_integrator_gain
         self.vel_limit_rev_s = s.vel_limit_rev_s
         self.current_limit_a = s.current_limit_a
+        self.watchdog_timeout_s = s.watchdog_timeout_s
+        self.enable_watchdog = s.enable_watchdog
+        self._apply_watchdog()
+        self.traj_vel_limit = s.traj_vel_limit
+        self.traj_accel_limit = s.traj_accel_limit
+        self.traj_decel_limit = s.traj_decel_limit
+        self.traj_inertia = s.traj_inertia
+        self._traj = None
+        self._traj_t0_s = 0.0
+        self.trajectory_done = True
         self.state = AxisState.IDLE
         self.errors = AxisError.NONE
         self.disarm_reason = AxisError.NONE
@@ -367,7 +491,9 @@ class SimOdriveAxis:
         self._last_feed_s = -math.inf
 
     def _tunables(self) -> _Tunables:
-        return _Tunables(self.pos_gain, self.vel_gain, self.vel_integrator_gain, self.vel_limit_rev_s, self.current_limit_a)
+        return _Tunables(self.pos_gain, self.vel_gain, self.vel_integrator_gain, self.vel_limit_rev_s, self.current_limit_a,
+                         self.watchdog_timeout_s, self.enable_watchdog, self.traj_vel_limit, self.traj_accel_limit,
+                         self.traj_decel_limit, self.traj_inertia)
 
     @property
     def targets_outside_limits(self) -> int:
@@ -396,8 +522,10 @@ class SimOdriveAxis:
         self.state = AxisState.IDLE
         self.torque_setpoint_nm = 0.0
         self.vel_integrator_nm = 0.0
+        self._cancel_trajectory()
 
     def _enter_closed_loop(self, now_s: float) -> None:
+        self._cancel_trajectory()
         self.state = AxisState.CLOSED_LOOP_CONTROL
         self.procedure_result = ProcedureResult.SUCCESS
         self.input_pos_rev = self.encoder_estimates()[0]
@@ -452,6 +580,9 @@ class SimOdriveAxis:
         self._check_watchdog(now_s)
         if handler(data, now_s):
             self._last_feed_s = now_s
+            if cmd == self._rxsdo_cmd and self._sdo_reply is not None:
+                reply, self._sdo_reply = self._sdo_reply, None
+                return [reply]
         else:
             self.stats["malformed"] += 1
         return []
@@ -467,15 +598,22 @@ class SimOdriveAxis:
         return True
 
     def _on_set_axis_state(self, data, now_s) -> bool:
-        requested = int(self._codecs[Cmd.SET_AXIS_STATE].unpack(data)[0])
+        # 4 or 8 bytes: the contract's short-frame rule (protocol.contract.SHORT_FRAMES) zero-pads a short one.
+        self._request_state(int(self._codecs[Cmd.SET_AXIS_STATE].unpack(data)[0]), now_s)
+        return True
+
+    def _request_state(self, requested: int, now_s: float) -> None:
+        """Set_Axis_State, or a write of axis0.requested_state through SDO."""
         if requested == AxisState.IDLE:
             self.state = AxisState.IDLE
             self.torque_setpoint_nm = 0.0
             self.vel_integrator_nm = 0.0
+            self._cancel_trajectory()
         elif requested == AxisState.CLOSED_LOOP_CONTROL:
             if self.errors:
                 self.state = AxisState.IDLE
                 self.procedure_result = ProcedureResult.DISARMED
+                self._cancel_trajectory()
             elif self.state is not AxisState.CLOSED_LOOP_CONTROL:
                 self._enter_closed_loop(now_s)
         elif requested in _INSTANT_PROCEDURES:
@@ -486,9 +624,9 @@ class SimOdriveAxis:
             self.state = AxisState.IDLE
             self.torque_setpoint_nm = 0.0
             self.vel_integrator_nm = 0.0
+            self._cancel_trajectory()
         else:
             self.stats["unsupported"] += 1
-        return True
 
     def _on_set_controller_mode(self, data, now_s) -> bool:
         control, inp = (int(v) for v in self._codecs[Cmd.SET_CONTROLLER_MODE].unpack(data))
@@ -501,10 +639,12 @@ class SimOdriveAxis:
             self.stats["unsupported"] += 1
             return True
         control_mode = ControlMode(control)
-        if control_mode is not self.control_mode and self.state is AxisState.CLOSED_LOOP_CONTROL:
-            self.input_pos_rev = self.encoder_estimates()[0]
+        if control_mode is not self.control_mode:
+            self._cancel_trajectory()
+            if self.state is AxisState.CLOSED_LOOP_CONTROL:
+                self.input_pos_rev = self.encoder_estimates()[0]
         self.control_mode = control_mode
-        self.input_mode = input_mode
+        self._set_input_mode(input_mode)
         return True
 
     def _on_set_input_pos(self, data, now_s) -> bool:
@@ -514,6 +654,14 @@ class SimOdriveAxis:
         c = self.config
         if (c.pos_min_rev is not None and pos < c.pos_min_rev) or (c.pos_max_rev is not None and pos > c.pos_max_rev):
             self.stats["targets_outside_limits"] += 1
+        if self.input_mode is _TRAP_TRAJ:
+            # TRAP_TRAJ: a move from the setpoint to the target; the feed-forwards come from the move.
+            if self.state is _CLOSED_LOOP and self.control_mode is _POSITION_CONTROL:
+                self._start_trajectory(pos, now_s)
+            self.input_pos_rev = pos
+            self.input_vel_rev_s = 0.0
+            self.input_torque_nm = 0.0
+            return True
         self.input_pos_rev = pos
         self.input_vel_rev_s = vel_ff
         self.input_torque_nm = torque_ff
@@ -585,13 +733,154 @@ class SimOdriveAxis:
         self.vel_integrator_gain = integrator_gain
         return True
 
+    # ODrive 0.6.10's SDO, trajectory and DFU commands.
+    def _apply_watchdog(self) -> None:
+        """The timeout the driver enforces: axis0.config.watchdog_timeout if enable_watchdog, else none."""
+        self._watchdog_timeout_s = self.watchdog_timeout_s if self.enable_watchdog else 0.0
+
+    def _sdo_table(self) -> dict[int, tuple[Endpoint, Callable[[], float | int | bool],
+                                            Callable[[float | int | bool], bool] | None]]:
+        """Endpoint id -> (endpoint, getter, setter or None for read-only) of what this driver serves."""
+        def set_watchdog_timeout(v):
+            if not (math.isfinite(v) and v >= 0.0):
+                return False
+            self.watchdog_timeout_s = v
+            self._apply_watchdog()
+            return True
+
+        def set_enable_watchdog(v):
+            self.enable_watchdog = bool(v)
+            self._apply_watchdog()
+            return True
+
+        def set_gain(name):
+            def setter(v):
+                if not (math.isfinite(v) and v >= 0.0):
+                    return False
+                setattr(self, name, v)
+                return True
+            return setter
+
+        def set_input_mode(v):
+            try:
+                mode = InputMode(int(v))
+            except ValueError:
+                return False
+            self._set_input_mode(mode)
+            return True
+
+        def set_requested_state(v):
+            self._request_state(int(v), self._sdo_now_s)
+            return True
+
+        served = {
+            "axis0.config.watchdog_timeout": (lambda: self.watchdog_timeout_s, set_watchdog_timeout),
+            "axis0.config.enable_watchdog": (lambda: self.enable_watchdog, set_enable_watchdog),
+            "axis0.controller.config.input_mode": (lambda: int(self.input_mode), set_input_mode),
+            "axis0.controller.config.pos_gain": (lambda: self.pos_gain, set_gain("pos_gain")),
+            "axis0.controller.config.vel_gain": (lambda: self.vel_gain, set_gain("vel_gain")),
+            "axis0.controller.config.vel_integrator_gain": (lambda: self.vel_integrator_gain,
+                                                            set_gain("vel_integrator_gain")),
+            "axis0.current_state": (lambda: int(self.state), None),
+            "axis0.requested_state": (lambda: 0, set_requested_state),
+            "axis0.pos_estimate": (lambda: self.encoder_estimates()[0], None),
+            "axis0.vel_estimate": (lambda: self.encoder_estimates()[1], None),
+            "axis0.config.can.node_id": (lambda: self.node_id, None),
+        }
+        by_path = {e.path: e for e in ENDPOINTS_BY_ID.values()}
+        return {by_path[path].id: (by_path[path], get, put) for path, (get, put) in served.items()}
+
+    def _on_rxsdo(self, data, now_s) -> bool:
+        """RxSdo: read (answered with TxSdo, sent from :meth:`handle`) or write an endpoint. An
+        endpoint this driver does not serve is answered with nothing (as ODrive does) and counted."""
+        opcode, endpoint_id, _reserved, raw = self._codecs[self._rxsdo_cmd].unpack(data)
+        entry = self._sdo_endpoints.get(int(endpoint_id))
+        if entry is None:
+            self.stats["sdo_unknown_endpoint"] += 1
+            return True
+        endpoint, getter, setter = entry
+        if opcode == SDO_OPCODE_READ:
+            self.stats["sdo_reads"] += 1
+            value = getter()
+            bits = sdo_value_bits(value) if endpoint.type == "float" else int(value)
+            self._sdo_reply = self._frame(self._txsdo_cmd, self._txsdo_codec, (0, endpoint.id, 0, bits))
+            return True
+        if opcode != SDO_OPCODE_WRITE:
+            return False
+        if setter is None:  # a read-only endpoint: ODrive ignores the write
+            self.stats["unsupported"] += 1
+            return True
+        try:
+            value = sdo_bits_value(int(raw)) if endpoint.type == "float" else endpoint.from_raw(int(raw))
+        except ValueError:
+            return False
+        self._sdo_now_s = now_s
+        if not setter(value):
+            return False
+        self.stats["sdo_writes"] += 1
+        return True
+
+    def _on_set_traj_vel_limit(self, data, now_s) -> bool:
+        (limit,) = self._codecs[self._traj_vel_cmd].unpack(data)
+        if not (math.isfinite(limit) and limit > 0.0):
+            return False
+        self.traj_vel_limit = limit
+        return True
+
+    def _on_set_traj_accel_limits(self, data, now_s) -> bool:
+        accel, decel = self._codecs[self._traj_accel_cmd].unpack(data)
+        if not (_finite(accel, decel) and accel > 0.0 and decel > 0.0):
+            return False
+        self.traj_accel_limit = accel
+        self.traj_decel_limit = decel
+        return True
+
+    def _on_set_traj_inertia(self, data, now_s) -> bool:
+        (inertia,) = self._codecs[self._traj_inertia_cmd].unpack(data)
+        if not (math.isfinite(inertia) and inertia >= 0.0):
+            return False
+        self.traj_inertia = inertia
+        return True
+
+    def _on_enter_dfu_mode(self, data, now_s) -> bool:
+        """Enter_DFU_Mode: refused (a simulated board has no bootloader), counted, no other effect."""
+        self.stats["dfu_refused"] += 1
+        return True
+
+    def _set_input_mode(self, mode: InputMode) -> None:
+        if mode is not self.input_mode:
+            self._cancel_trajectory()
+        self.input_mode = mode
+
+    def _cancel_trajectory(self) -> None:
+        """Stop following a trajectory (the position input stays the move's target, as ODrive's input_pos)."""
+        if self._traj is not None:
+            self._traj = None
+            self.trajectory_done = True
+
+    def _start_trajectory(self, target: float, now_s: float) -> None:
+        """TRAP_TRAJ: plan from the current setpoint (at rest, or where a running move is now) to ``target``."""
+        traj = self._traj
+        if traj is not None:
+            start, vel, _acc = traj.eval(now_s - self._traj_t0_s)
+        else:
+            start, vel = self.input_pos_rev, 0.0  # the setpoint held at rest (called before input_pos changes)
+        self._traj = TrapezoidalTrajectory(target, start, vel, self.traj_vel_limit, self.traj_accel_limit,
+                                           self.traj_decel_limit)
+        self._traj_t0_s = now_s
+        self.trajectory_done = False
+
+    def _address_values(self) -> tuple:
+        return (self.node_id, self._serial_number)
+
     # ------------------------------------------------------------------ reply values (DBC signal order)
     def _version_values(self) -> tuple:
         hw, fw = self.config.hw_version, self.config.fw_version
         return (PROTOCOL_VERSION, hw[0], hw[1], hw[2], fw[0], fw[1], fw[2], 0)
 
     def _heartbeat_values(self) -> tuple:
-        return (int(self.errors | self.disarm_reason), int(self.state), int(self.procedure_result), 1)
+        return (int(self.errors | self.disarm_reason), int(self.state), int(self.procedure_result),
+                1 if self.trajectory_done else 0)
 
     def _error_values(self) -> tuple:
         return (int(self.errors), int(self.disarm_reason))
@@ -600,10 +889,10 @@ class SimOdriveAxis:
         return (self.motor.iq_setpoint_a, self.motor.iq_measured_a)
 
     def _temperature_values(self) -> tuple:
-        return (AMBIENT_TEMPERATURE_C, AMBIENT_TEMPERATURE_C)
+        return self.thermal.temperature_values()
 
     def _bus_values(self) -> tuple:
-        return (self.motor.params.bus_voltage_v, self.motor.bus_current_a)
+        return self.thermal.bus_values()
 
     def _torque_values(self) -> tuple:
         return (self.torque_setpoint_nm, self.motor.torque_estimate_nm)
@@ -614,6 +903,7 @@ class SimOdriveAxis:
     # ------------------------------------------------------------------ control loop
     def update(self, now_s: float, dt_s: float) -> None:
         """One control step at physics rate: watchdog, position-limit check, the cascade, the motor torque."""
+        self.thermal.step(dt_s)  # the heat of the current applied over the step just simulated
         self._check_watchdog(now_s)
         motor = self.motor
         raw_pos, vel = motor.motor_state()
@@ -650,15 +940,26 @@ class SimOdriveAxis:
                 torque = -torque_limit
             self.vel_integrator_nm = 0.0
         else:
-            vel_des = self.input_vel_rev_s
+            traj = self._traj
+            if traj is None:
+                pos_set, vel_set, torque_ff = self.input_pos_rev, self.input_vel_rev_s, self.input_torque_nm
+            else:
+                # TRAP_TRAJ: the move's setpoints, its acceleration times Set_Traj_Inertia fed forward.
+                t = now_s - self._traj_t0_s
+                pos_set, vel_set, acc = traj.eval(t)
+                torque_ff = acc * self.traj_inertia
+                if traj.done(t):
+                    self._traj = None
+                    self.trajectory_done = True
+            vel_des = vel_set
             if mode is _POSITION_CONTROL:
-                vel_des += self.pos_gain * (self.input_pos_rev - pos)
+                vel_des += self.pos_gain * (pos_set - pos)
             if vel_des > vel_limit:
                 vel_des = vel_limit
             elif vel_des < -vel_limit:
                 vel_des = -vel_limit
             v_err = vel_des - vel
-            torque = self.input_torque_nm + self.vel_gain * v_err + self.vel_integrator_nm
+            torque = torque_ff + self.vel_gain * v_err + self.vel_integrator_nm
             if torque > torque_limit:
                 torque = torque_limit
                 self.vel_integrator_nm *= 0.99
@@ -696,4 +997,10 @@ class SimOdriveAxis:
             self._next_enc = nxt if nxt > now_s else now_s + period
             self._tx[self._enc_name] += 1
             out.append(data_frame(self._enc_id, self._enc_codec.pack(*self.encoder_estimates())))
+        period = self._health_period_s
+        if period > 0.0 and now_s >= self._next_health - _SCHEDULE_EPS_S:
+            nxt = self._next_health + period
+            self._next_health = nxt if nxt > now_s else now_s + period
+            for cmd in (Cmd.GET_TEMPERATURE, Cmd.GET_BUS_VOLTAGE_CURRENT, Cmd.GET_IQ):
+                out.append(self._frame(cmd, self._codecs[cmd], self._getters[cmd]()))
         return out

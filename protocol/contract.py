@@ -1,7 +1,19 @@
 """Load the DBC and turn it into codecs addressed by node id.
 
 ODrive's messages are defined in the DBC for node 0 (frame id = cmd id); a driver at node N
-uses ``N << 5 | cmd_id``. The sensor board's messages carry their full ids (node 16).
+uses ``N << 5 | cmd_id``. The sensor board's messages carry their full ids (node 16). The ODrive
+messages match ODrive's own generated DBC for firmware 0.6.10 (``protocol/reference/``, read only
+by the tests, never at run time) message for message, signal for signal.
+
+Short frames: a receiver accepts a payload shorter than the DBC's length only for the messages of
+:data:`SHORT_FRAMES` (ODrive's own examples send them short), down to the length given there; the
+missing bytes read as zero. :attr:`MessageCodec.min_length` (or
+:meth:`BusContract.min_payload_length`) is that shortest length, and :meth:`MessageCodec.unpack`
+accepts exactly what it allows.
+
+SDO: RxSdo and TxSdo carry an endpoint's value in bytes 4..7, whose type depends on the endpoint.
+The DBC keeps ODrive's raw ``Value`` (uint32); :func:`sdo_value_bits` and :func:`sdo_bits_value`
+convert a float32 endpoint's value to and from it.
 
 :class:`MessageCodec` packs and unpacks payloads. Where every signal of a message is
 byte-aligned, little-endian and 8/16/32 bits wide, the layout is compiled once into a
@@ -18,6 +30,8 @@ import struct
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
 
 import cantools
 
@@ -27,6 +41,41 @@ NODE_ID_BITS = 6
 CMD_ID_MASK = 0x1F
 MAX_NODE_ID = 0x3F
 DBC_PATH = Path(str(resources.files("protocol").joinpath("elegant_stepping.dbc")))
+
+SHORT_FRAMES: Mapping[str, int] = MappingProxyType({
+    # ODrive's CANSimple example (can_simple.py, docs' CAN guide) sends struct.pack('<I', state).
+    "Set_Axis_State": 4,
+    # ODrive's endpoint-access example sends a read as struct.pack('<BHB', opcode, endpoint, 0)
+    # and a write of a 1- or 2-byte endpoint as 5 or 6 bytes.
+    "RxSdo": 4,
+    # The reference's own comment: an RTR or an empty payload asks for the serial number.
+    "Address": 0,
+    # Earlier CANSimple versions define these without a payload (no Identify, no Action): empty
+    # means Identify 0 and Action 0 (reboot).
+    "Clear_Errors": 0,
+    "Reboot": 0,
+})
+"""Messages a receiver accepts shorter than the DBC's length: name -> shortest payload [bytes].
+Every other message must carry at least its DBC length. Missing bytes read as zero."""
+
+_F32 = struct.Struct("<f")
+_U32 = struct.Struct("<I")
+
+
+def sdo_value_bits(value: float) -> int:
+    """RxSdo/TxSdo ``Value`` (the raw uint32 of bytes 4..7) carrying ``value`` as a float32.
+    Raises ``ValueError`` for a value outside float32's range (NaN and infinities pass)."""
+    try:
+        return _U32.unpack(_F32.pack(value))[0]
+    except (OverflowError, struct.error) as exc:
+        raise ValueError(f"{value!r} does not fit a float32 SDO value") from exc
+
+
+def sdo_bits_value(bits: int) -> float:
+    """The float32 a RxSdo/TxSdo ``Value`` (raw uint32) carries. Raises ``ValueError`` outside 0..2**32-1."""
+    if not 0 <= bits <= 0xFFFFFFFF:
+        raise ValueError(f"SDO value bits must be a uint32, got {bits!r}")
+    return _F32.unpack(_U32.pack(bits))[0]
 
 
 def arbitration_id(node_id: int, cmd_id: int) -> int:
@@ -60,6 +109,8 @@ class MessageCodec:
         self.frame_id: int = message.frame_id
         self.cmd_id: int = message.frame_id & CMD_ID_MASK
         self.dlc: int = message.length
+        # Shortest payload a receiver accepts (SHORT_FRAMES; the DLC for every other message).
+        self.min_length: int = min(SHORT_FRAMES.get(message.name, message.length), message.length)
         signals = sorted(message.signals, key=lambda s: s.start)
         self.signal_names: tuple[str, ...] = tuple(s.name for s in signals)
         self._scales = tuple((float(s.scale), float(s.offset), bool(s.is_float)) for s in signals)
@@ -131,10 +182,19 @@ class MessageCodec:
             raw[i] = r
         return pack_raw(*raw)
 
+    def accepts_length(self, length: int) -> bool:
+        """True if a received payload of ``length`` bytes is acceptable (:data:`SHORT_FRAMES`)."""
+        return length >= self.min_length
+
     def unpack(self, data: bytes | bytearray) -> tuple[float, ...]:
-        """Physical values in signal order. Raises ``ValueError`` on a short payload."""
+        """Physical values in signal order. Raises ``ValueError`` on a payload shorter than
+        :attr:`min_length`; a shorter payload it accepts (:data:`SHORT_FRAMES`) reads as if
+        zero-padded to the DLC."""
         if len(data) < self.dlc:
-            raise ValueError(f"{self.name}: payload of {len(data)} bytes, DLC {self.dlc} expected")
+            if len(data) < self.min_length:
+                expected = f"DLC {self.dlc}" if self.min_length == self.dlc else f"at least {self.min_length}"
+                raise ValueError(f"{self.name}: payload of {len(data)} bytes, {expected} expected")
+            data = bytes(data) + bytes(self.dlc - len(data))
         unpack_raw = self._unpack_raw
         if unpack_raw is None:
             decoded = self.message.decode(bytes(data[: self.dlc]), decode_choices=False, scaling=True)
@@ -177,8 +237,10 @@ class BusContract:
         self.sensor_board: dict[int, MessageCodec] = {}
         self.by_name: dict[str, MessageCodec] = {}
         # What only the master sends (commands and Get_* requests' ids as data frames): hearing
-        # one of these from someone else means another master is on the bus.
-        self.master_messages: frozenset[str] = frozenset(m.name for m in db.messages if MASTER_NODE in m.senders)
+        # one of these from someone else means another master is on the bus. Address is sent by
+        # both (the ODrive answers with it), so it is not one of them.
+        self.master_messages: frozenset[str] = frozenset(
+            m.name for m in db.messages if set(m.senders) == {MASTER_NODE})
         for message in db.messages:
             codec = MessageCodec(message)
             self.by_name[message.name] = codec
@@ -212,6 +274,11 @@ class BusContract:
         table = self.sensor_board if node_id == SENSOR_BOARD_NODE_ID else self.odrive
         codec = table.get(cmd_id)
         return None if codec is None else Route(node_id, codec)
+
+    def min_payload_length(self, name: str) -> int:
+        """The shortest payload of ``name`` a receiver accepts: its DLC, or less for the
+        messages of :data:`SHORT_FRAMES`."""
+        return self.codec(name).min_length
 
     def odrive_id(self, node_id: int, name: str) -> int:
         return arbitration_id(node_id, self.codec(name).cmd_id)

@@ -254,6 +254,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
     bus = lean(raw_bus, timestamps=False)
     loop = ControlLoop(config, bus, premotor)
     if deploy is not None:
+        loop.drivers_watchdog_timeout_s = deploy.drivers.watchdog_timeout_s  # written through RxSdo at arming
         loop.arm_blocked = deploy.armable_reason()
         if loop.arm_blocked:
             log.warning("arming blocked: %s", loop.arm_blocked)

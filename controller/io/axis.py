@@ -4,11 +4,13 @@ Feedback arrives from Heartbeat and Get_Encoder_Estimates frames and is converte
 units through the axis's gear ratio, direction and zero offset. A feedback frame is applied
 whole or not at all: the handlers return False (the frame is counted ``invalid`` and dropped by
 :class:`controller.io.bus.BusIO`) for a heartbeat whose Axis_State is not an ODrive state, whose
-Axis_Error has bits firmware 0.6 does not define, or that reports an error in closed loop (ODrive
-disarms on any error), and for encoder estimates that are NaN, infinite, faster than
+Axis_Error has bits firmware 0.6 does not define, and for encoder estimates that are NaN, infinite, faster than
 ``FeedbackLimits.max_vel_rev_s``, further than ``FeedbackLimits.pos_slack_rad`` outside the
 joint's range, or that jump from the last accepted reading faster than
 ``FeedbackLimits.max_joint_speed_rad_s`` (no joint of the rig can do that: a corrupted frame).
+A heartbeat that reports an error is applied whatever the state (in closed loop too): the
+supervisor acts on it in that tick. The drivers' health readings (Get_Bus_Voltage_Current,
+Get_Temperature, Get_Iq, sent cyclically: :mod:`controller.io.health`) are kept as they come.
 
 Every position command passes through :meth:`AxisLink.pos_frame`, which clamps the target into
 ``[min_rad, max_rad]`` (a NaN target holds the last one) and then clamps the motor position it
@@ -26,8 +28,12 @@ from dataclasses import dataclass
 
 import can
 
+from controller.io.health import plausible_temperature
 from controller.settings.schema import REQUIRED, check_settings, setting
 from protocol import SENSOR_BOARD_NODE_ID, AxisError, AxisState, BusContract, ControlMode, InputMode, data_frame
+from protocol.contract import sdo_bits_value, sdo_value_bits
+from protocol.endpoints import BY_ID as ENDPOINTS_BY_ID
+from protocol.endpoints import SDO_OPCODE_READ, SDO_OPCODE_WRITE, Endpoint
 
 _F32 = struct.Struct("<f")
 _U32 = struct.Struct("<I")
@@ -178,6 +184,7 @@ class AxisLink:
         self.limits_id = contract.odrive_id(node, "Set_Limits")
         self.heartbeat_id = contract.odrive_id(node, "Heartbeat")
         self.encoder_id = contract.odrive_id(node, "Get_Encoder_Estimates")
+        self._init_sdo(contract)
         # joint <-> motor unit factors, precomputed for the 500 Hz path
         self._rev_per_rad = config.direction * config.gear_ratio / (2.0 * math.pi)
         self._rad_per_rev = 1.0 / self._rev_per_rad
@@ -201,20 +208,25 @@ class AxisLink:
         self.heartbeat_t_s = -math.inf
         self.bus_voltage_v: float | None = None
         self.bus_voltage_t_s = -math.inf
+        # health readings (controller.io.health): None until received (a NaN thermistor stays None)
+        self.fet_temp_c: float | None = None
+        self.motor_temp_c: float | None = None
+        self.temperature_t_s = -math.inf
+        self.iq_a: float | None = None
+        self.iq_t_s = -math.inf
 
     # -- feedback ------------------------------------------------------------------------
     def on_heartbeat(self, values: tuple, now_s: float) -> bool:
-        """Heartbeat: False (nothing applied) when Axis_State is not an ODrive axis state, Axis_Error
-        has bits firmware 0.6 does not define, or the axis reports an error in closed loop."""
+        """Heartbeat: False (nothing applied) when Axis_State is not an ODrive axis state or
+        Axis_Error has bits firmware 0.6 does not define. An error is applied in any state (in
+        closed loop too, where the supervisor makes it a FAULT in the same tick)."""
         error, state, result, _done = values
         try:
             state = AxisState(int(state))
         except ValueError:
             return False
         error = int(error)
-        if error & ~_KNOWN_ERRORS or (error and state is AxisState.CLOSED_LOOP_CONTROL):
-            # Bits ODrive 0.6 does not define, or an error while in closed loop (ODrive disarms on
-            # any error and clears Disarm_Reason when it arms): a corrupted heartbeat.
+        if error & ~_KNOWN_ERRORS:  # bits ODrive 0.6 does not define: a corrupted heartbeat
             return False
         self.error = error
         self.state = state
@@ -250,6 +262,27 @@ class AxisLink:
             return False
         self.bus_voltage_v = float(voltage)
         self.bus_voltage_t_s = now_s
+        return True
+
+    def on_temperature(self, values: tuple, now_s: float) -> bool:
+        """Get_Temperature (FET, motor) [C]: False (nothing applied) for a value outside -60..300 C
+        or infinite; NaN (no thermistor) is kept as None."""
+        fet, motor = values
+        for t in (fet, motor):
+            if t == t and not plausible_temperature(t):
+                return False
+        self.fet_temp_c = float(fet) if fet == fet else None
+        self.motor_temp_c = float(motor) if motor == motor else None
+        self.temperature_t_s = now_s
+        return True
+
+    def on_iq(self, values: tuple, now_s: float) -> bool:
+        """Get_Iq (setpoint, measured) [A]: False (nothing applied) unless the measured Iq is finite."""
+        _setpoint, measured = values
+        if not math.isfinite(measured):
+            return False
+        self.iq_a = float(measured)
+        self.iq_t_s = now_s
         return True
 
     @property
@@ -304,3 +337,39 @@ class AxisLink:
         """ODrive's Estop (CANSimple cmd 0x002, no payload): the axis disarms and latches
         ESTOP_REQUESTED until Clear_Errors."""
         return data_frame(self.estop_id, b"")
+
+    # -- SDO (RxSdo / TxSdo): endpoint access, ids from protocol.endpoints (UNVERIFIED) ----------
+    def _init_sdo(self, contract: BusContract) -> None:
+        node = self.config.node_id
+        self._rxsdo = contract.codec("RxSdo")
+        self.txsdo_codec = contract.codec("TxSdo")
+        self.rxsdo_id = contract.odrive_id(node, "RxSdo")
+        self.txsdo_id = contract.odrive_id(node, "TxSdo")
+        self.sdo_replies: dict[int, tuple[int, float]] = {}  # endpoint id -> (raw Value, time received)
+
+    def sdo_write_frame(self, endpoint: Endpoint, value: float | int | bool) -> can.Message:
+        """RxSdo writing ``value`` to ``endpoint`` (a float endpoint's value as its float32 bits)."""
+        raw = sdo_value_bits(value) if endpoint.type == "float" else endpoint.to_raw(value)
+        return data_frame(self.rxsdo_id, self._rxsdo.pack(SDO_OPCODE_WRITE, endpoint.id, 0, raw))
+
+    def sdo_read_frame(self, endpoint: Endpoint) -> can.Message:
+        """RxSdo reading ``endpoint``: the driver answers with TxSdo (:meth:`on_txsdo`)."""
+        return data_frame(self.rxsdo_id, self._rxsdo.pack(SDO_OPCODE_READ, endpoint.id, 0, 0))
+
+    def on_txsdo(self, values: tuple, now_s: float) -> bool:
+        """TxSdo: the raw Value of the endpoint read, kept by endpoint id with its time (for
+        :meth:`sdo_reply`). False (nothing kept) for an endpoint id outside the table."""
+        _reserved0, endpoint_id, _reserved1, raw = values
+        endpoint_id = int(endpoint_id)
+        if endpoint_id not in ENDPOINTS_BY_ID:
+            return False
+        self.sdo_replies[endpoint_id] = (int(raw), now_s)
+        return True
+
+    def sdo_reply(self, endpoint: Endpoint, since_s: float = -math.inf) -> float | int | bool | None:
+        """The value the driver last reported for ``endpoint`` at or after ``since_s``, or None."""
+        reply = self.sdo_replies.get(endpoint.id)
+        if reply is None or reply[1] < since_s:
+            return None
+        raw = reply[0]
+        return sdo_bits_value(raw) if endpoint.type == "float" else endpoint.from_raw(raw)

@@ -152,10 +152,13 @@ class BusIO:
         # bounds only for Set_Input_Pos (None otherwise).
         self._tx_table: dict[int, tuple[str, float | None, float | None]] = {}
         for axis in axes:
-            self._listen(axis.heartbeat_id, contract.codec("Heartbeat"), axis.on_heartbeat)
-            self._listen(axis.encoder_id, contract.codec("Get_Encoder_Estimates"), axis.on_encoder)
+            self.listen(axis.heartbeat_id, contract.codec("Heartbeat"), axis.on_heartbeat)
+            self.listen(axis.encoder_id, contract.codec("Get_Encoder_Estimates"), axis.on_encoder)
             voltage = contract.codec("Get_Bus_Voltage_Current")
-            self._listen(arbitration_id(axis.config.node_id, voltage.cmd_id), voltage, axis.on_bus_voltage)
+            self.listen(arbitration_id(axis.config.node_id, voltage.cmd_id), voltage, axis.on_bus_voltage)
+            for name, handler in (("Get_Temperature", axis.on_temperature), ("Get_Iq", axis.on_iq)):  # health
+                codec = contract.codec(name)
+                self.listen(arbitration_id(axis.config.node_id, codec.cmd_id), codec, handler)
             for codec in contract.odrive.values():
                 if codec.name in contract.master_messages:
                     self._tx_table[arbitration_id(axis.config.node_id, codec.cmd_id)] = (codec.name, None, None)
@@ -165,13 +168,14 @@ class BusIO:
         for name, handler in (("SB_Range", sensors.on_range), ("SB_Profile", sensors.on_profile),
                               ("SB_Contacts", sensors.on_contacts), ("SB_Heartbeat", sensors.on_heartbeat)):
             codec = contract.codec(name)
-            self._listen(arbitration_id(sb, codec.cmd_id), codec, handler)
+            self.listen(arbitration_id(sb, codec.cmd_id), codec, handler)
         for codec in contract.sensor_board.values():
             if codec.name in contract.master_messages:
                 self._tx_table[arbitration_id(sb, codec.cmd_id)] = (codec.name, None, None)
         self._pos_len, self._unpack_pos = self._input_pos_reader(contract)
 
-    def _listen(self, arb_id: int, codec, handler: Handler) -> None:
+    def listen(self, arb_id: int, codec, handler: Handler) -> None:
+        """Hand every valid frame with ``arb_id`` (decoded by ``codec``) to ``handler``."""
         self._table[arb_id] = (handler, codec.unpack, codec.dlc, codec.name)
 
     @staticmethod

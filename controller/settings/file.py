@@ -30,7 +30,8 @@ section             what it sets
                     nobody confirmed (:meth:`DeployConfig.armable_reason`)
 ``[cpg]``,          the model, field by field onto the dataclass of the same name in
 ``[gait]``, ...     :class:`~controller.config.ControllerConfig`: ``cpg``, ``gait``, ``geometry``,
-                    ``learner``, ``encoder``, ``range_filter``, ``reflexes``, ``height``
+                    ``learner``, ``encoder``, ``range_filter``, ``reflexes``, ``height``; and
+                    ``[health]``, the drivers' runtime bounds (:class:`~controller.io.health.HealthConfig`)
 ==================  ==========================================================================
 
 The schema is not written here: each key's kind, unit, range and one-line comment are the
@@ -68,6 +69,7 @@ TOML is read with the standard library's ``tomllib`` (Python 3.11+) or, on Pytho
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import logging
 import os
 import re
@@ -153,17 +155,19 @@ class BusSettings:
 
 @dataclass(frozen=True)
 class DriverSettings:
-    """What the motor drivers are configured with (in the drivers, not over CAN).
+    """What the motor drivers are configured with.
 
     ``watchdog_timeout_s``: an axis that hears no command for this long disarms (IDLE,
-    WATCHDOG_TIMER_EXPIRED). ODrive's ``axis.config.watchdog_timeout`` (with
-    ``axis.config.enable_watchdog``), set with odrivetool: CANSimple 0.6 cannot set it. The
-    controller only checks its own command period against it (at least
-    :data:`MIN_COMMANDS_PER_WATCHDOG` commands per timeout). The default is the simulated drivers'.
+    WATCHDOG_TIMER_EXPIRED). ODrive's ``axis.config.watchdog_timeout`` (enabled with
+    ``axis.config.enable_watchdog``, set with odrivetool). The controller writes this value to
+    every axis through RxSdo at arming and checks it back through TxSdo (a mismatch or no answer
+    is a latched fault; the endpoint ids are in :mod:`protocol.endpoints`, marked unverified), and
+    checks its own command period against it (at least :data:`MIN_COMMANDS_PER_WATCHDOG` commands
+    per timeout). The default is the simulated drivers'.
     """
 
     watchdog_timeout_s: float = setting(0.1, "s", 0.005, 1.0, "the drivers' command watchdog "
-                                        "(ODrive axis.config.watchdog_timeout; set with odrivetool)")
+                                        "(ODrive axis.config.watchdog_timeout; written by RxSdo at arming)")
 
     def __post_init__(self) -> None:
         check_settings(self, "drivers")
@@ -353,7 +357,7 @@ SERVICE = settings_of(ServiceSettings)
 CALIBRATION = settings_of(CalibrationSettings)
 MODEL: dict[str, tuple[Setting, ...]] = {
     section: settings_of(type(getattr(_BASE, section)))
-    for section in ("cpg", "gait", "geometry", "learner", "encoder", "range_filter", "reflexes", "height")
+    for section in ("cpg", "gait", "geometry", "learner", "encoder", "range_filter", "reflexes", "height", "health")
 }
 
 AXIS_NAMES = ("hip", "knee")

@@ -15,6 +15,12 @@ Each row starts what it needs and returns a row of the matrix (``fault``, ``wher
   every weights file byte for byte as before (``files_unchanged``).
 - ``weights_incompatible``: the daemon started on a file of another cell width: the file is kept
   aside, byte for byte (``set_aside``), and nothing is written in its place.
+- ``over_temperature``, ``bus_undervoltage``: while walking (lockstep), the hip's motor winding
+  starts to dissipate 150 W without current (a winding fault: the simulated motor heats toward
+  325 C, :mod:`firmware_sim.thermal`), or both drivers' supply drops from 24 V to 15 V (a
+  battery giving out): the controller must stop the leg on the drivers' cyclic readings
+  (:mod:`controller.io.health`), a latched FAULT naming the reading and the bound
+  (``safe_state_ms``: from the bound crossed, ground truth, to every axis IDLE).
 - ``sighup``, ``sigusr1``: the daemon walking the simulated leg (``auto_arm``) gets the signal:
   exit 0, every axis IDLE on the daemon's word (no watchdog trip), the weights file intact
   (``stop_ms``: from the signal to the exit).
@@ -141,6 +147,59 @@ def second_master(seed: int = 0) -> dict[str, Any]:
                     safe_state_ms=safe_ms, fault_cause=f"{cause}: latched fault in tick {ticks_to_fault} after the "
                                                        f"first foreign frame ({FOREIGN_FRAMES} sent)",
                     commands_outside_limits=audit.outside, data_lost=False)
+    finally:
+        ls.close()
+
+
+WINDING_FAULT_W = 150.0  # over_temperature: the hip winding's loss without current [W]
+SAGGED_SUPPLY_V = 15.0  # bus_undervoltage: the supply's voltage after it drops [V]
+HEALTH_ROW_MAX_S = 120.0  # simulated time a health row waits for the bound and the stop [s]
+
+
+def health_row(fault: str, seed: int = 0) -> dict[str, Any]:
+    """A driver reading beyond its bound while walking: a latched fault, every axis IDLE."""
+    from controller.supervisor import Phase
+
+    ls, audit, _ = _lockstep(seed)
+    try:
+        bounds = ls.loop.config.health
+        while ls.loop.phase is not Phase.WALK and ls.t_s < 10.0:
+            ls.step()
+        walk_t = ls.t_s
+        while ls.t_s < walk_t + 1.0:
+            ls.step()
+        thermals = [a.thermal for a in ls.leg.axes.values()]
+        if fault == "over_temperature":
+            hot = ls.leg.axes["hip"].thermal
+            hot.extra_motor_loss_w = WINDING_FAULT_W
+            crossed = lambda: hot.motor_c > bounds.max_motor_temp_c  # noqa: E731
+            condition = f"hip winding dissipating {WINDING_FAULT_W:g} W"
+        else:
+            for th in thermals:
+                th.source_voltage_v = SAGGED_SUPPLY_V
+            crossed = lambda: any(th.bus_voltage_v < bounds.min_bus_voltage_v for th in thermals)  # noqa: E731
+            condition = f"supply dropped to {SAGGED_SUPPLY_V:g} V"
+        t0, t_cross, t_fault, t_idle, ticks, ticks_to_fault = ls.t_s, None, None, None, 0, None
+        while ls.t_s < t0 + HEALTH_ROW_MAX_S and t_idle is None:
+            ticks += ls.step()
+            if t_cross is None and crossed():
+                t_cross, ticks = ls.t_s, 0
+            if t_fault is None and ls.loop.phase is Phase.FAULT:
+                t_fault, ticks_to_fault = ls.t_s, ticks
+            if t_fault is not None and ls.axes_idle():
+                t_idle = ls.t_s
+        cause = ls.loop.supervisor.fault_cause
+        safe_ms = None if t_cross is None or t_idle is None else round((t_idle - t_cross) * 1e3, 1)
+        detect_ms = None if t_cross is None or t_fault is None else round((t_fault - t_cross) * 1e3, 1)
+        return _row(fault, "lockstep", safe_state_ms=safe_ms, detect_ms=detect_ms, ticks_to_fault=ticks_to_fault,
+                    read_period_s=bounds.read_period_s,
+                    bound_crossed_s=None if t_cross is None else round(t_cross - t0, 3),
+                    max_motor_temp_c=round(max(th.motor_c for th in thermals), 2),
+                    min_bus_voltage_v=round(min(th.bus_voltage_v for th in thermals), 2),
+                    commands_outside_limits=audit.outside, data_lost=False,
+                    fault_cause=(f"{condition}: {cause or 'NO FAULT'}; bound crossed "
+                                 f"{'never' if t_cross is None else f'{t_cross - t0:.3f} s'} after, every axis "
+                                 f"IDLE {'never' if safe_ms is None else f'{safe_ms:g} ms'} after the crossing"))
     finally:
         ls.close()
 
@@ -308,6 +367,8 @@ ROWS: dict[str, Callable[[Path], dict[str, Any]]] = {
     "driver_error_latched_at_start": lambda out: latched_at_start("driver_error_latched_at_start",
                                                                   "DRV_FAULT", ("knee",)),
     "second_master": lambda out: second_master(),
+    "over_temperature": lambda out: health_row("over_temperature"),
+    "bus_undervoltage": lambda out: health_row("bus_undervoltage"),
     "restart_without_walking": restart_without_walking,
     "weights_incompatible": weights_incompatible,
     "sighup": lambda out: stop_signal(out, signal.SIGHUP),

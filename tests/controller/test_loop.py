@@ -13,9 +13,12 @@ from controller.config import ControllerConfig
 from controller.loop import ControlLoop
 from controller.supervisor import Phase
 from protocol import SENSOR_BOARD_NODE_ID, AxisError, AxisState, BusContract, arbitration_id, data_frame
+from protocol.contract import sdo_bits_value, sdo_value_bits
+from protocol.endpoints import WATCHDOG_TIMEOUT
 from tests.fakes import FakeBus
 
 C = BusContract.load()
+RXSDO, TXSDO = C.codec("RxSdo"), C.codec("TxSdo")
 HB, ENC, SB_HB = C.codec("Heartbeat"), C.codec("Get_Encoder_Estimates"), C.codec("SB_Heartbeat")
 ESTOP = int(AxisError.ESTOP_REQUESTED)
 
@@ -44,9 +47,30 @@ class Leg:
         self.errors = {0: 0, 1: 0}
         self.t = 0.0
         self.quiet: set[int] = set()
+        # The drivers' SDO: each answers a read with what was written to it (``watchdog_reads``:
+        # a value it answers instead; "silent": no answer at all), the tick after.
+        self.watchdog_reads: dict[int, float | str | None] = {0: None, 1: None}
+        self.written: dict[int, int] = {}
+        self._sdo_seen = 0
+
+    def _answer_sdo(self) -> None:
+        sent = self.bus.sent
+        for m in sent[self._sdo_seen:]:
+            node, cmd = m.arbitration_id >> 5, m.arbitration_id & 0x1F
+            if cmd != RXSDO.cmd_id:
+                continue
+            opcode, endpoint_id, _reserved, raw = RXSDO.unpack(m.data)
+            if opcode == 1:
+                self.written[node] = int(raw)
+            elif self.watchdog_reads[node] != "silent":
+                answer = self.watchdog_reads[node]
+                value = self.written.get(node, 0) if answer is None else sdo_value_bits(answer)
+                self.bus.push(data_frame(C.odrive_id(node, "TxSdo"), TXSDO.pack(0, int(endpoint_id), 0, value)))
+        self._sdo_seen = len(sent)
 
     def tick(self, n: int = 1, feedback: bool = True) -> None:
         for _ in range(n):
+            self._answer_sdo()
             if feedback:
                 for node in (0, 1):
                     if node not in self.quiet:
@@ -299,3 +323,82 @@ def test_status_is_json_serialisable_in_every_phase():
     assert st["axes"]["hip"]["state"] == "IDLE" and math.isfinite(st["axes"]["hip"]["pos_rad"])
     assert set(st) == {"phase", "lifecycle", "fault_cause", "fault_t_s", "axes", "ticks", "late_ticks",
                        "max_period_s", "steps", "reflexes", "arm_blocked"}
+
+
+# --------------------------------------------------------------------------- the drivers' watchdog through SDO
+def _sdo_sent(leg, node):
+    out = []
+    for m in leg.bus.sent:
+        if m.arbitration_id == C.odrive_id(node, "RxSdo"):
+            out.append(RXSDO.decode(m.data))
+    return out
+
+
+def _arm_and_run(leg, ticks):
+    leg.tick(3)
+    assert leg.loop.request_arm(leg.t) is None
+    for _ in range(ticks):
+        leg.tick()
+        leg.follow()
+
+
+def test_arming_writes_the_drivers_watchdog_and_confirms_it_without_waiting():
+    leg = Leg()
+    leg.loop.drivers_watchdog_timeout_s = 0.25
+    leg.tick(3)
+    assert leg.loop.request_arm(leg.t) is None
+    leg.tick()  # the arming frames: the write and the read go before the closed-loop request
+    for node in (0, 1):
+        ids = [m.arbitration_id for m in leg.bus.sent if m.arbitration_id >> 5 == node]
+        assert ids.index(C.odrive_id(node, "RxSdo")) < ids.index(C.odrive_id(node, "Set_Axis_State"))
+        write, read = _sdo_sent(leg, node)
+        assert (write["Opcode"], write["Endpoint_ID"]) == (1, WATCHDOG_TIMEOUT.id)
+        assert sdo_bits_value(int(write["Value"])) == pytest.approx(0.25)
+        assert (read["Opcode"], read["Endpoint_ID"]) == (0, WATCHDOG_TIMEOUT.id)
+    assert leg.loop.supervisor.pending_watchdog  # arming goes on before any reply
+    for _ in range(800):
+        leg.tick()
+        leg.follow()
+    assert leg.loop.phase is Phase.WALK and not leg.loop.supervisor.pending_watchdog
+    assert leg.loop.io.rx["TxSdo"] == 2 and leg.loop.io.tx["RxSdo"] == 4
+    assert all(len(_sdo_sent(leg, node)) == 2 for node in (0, 1))  # once per arming, not per retry
+
+
+def test_a_driver_reading_back_another_watchdog_timeout_is_a_latched_fault(caplog):
+    leg = Leg()
+    leg.watchdog_reads[0] = 0.2  # the hip's driver answers 0.2 s whatever was written
+    _arm_and_run(leg, 20)
+    sup = leg.loop.supervisor
+    assert leg.loop.phase is Phase.FAULT
+    assert sup.fault_cause == "watchdog timeout not confirmed: hip wrote 0.1 s, read 0.2 s"
+    leg.tick(100)
+    assert leg.loop.phase is Phase.FAULT  # latched
+    assert leg.sent("Set_Axis_State", 0) >= 2  # IDLE sent
+
+
+def test_no_watchdog_read_back_within_half_a_second_is_a_fault_while_arming_goes_on():
+    leg = Leg()
+    leg.watchdog_reads[1] = "silent"
+    leg.tick(3)
+    leg.loop.request_arm(leg.t)
+    t_arm = leg.t
+    phases = set()
+    while leg.loop.phase is not Phase.FAULT and leg.t < t_arm + 1.0:
+        leg.tick()
+        leg.follow()
+        phases.add(leg.loop.phase)
+    assert Phase.RAMP in phases  # arming did not wait for the reply
+    assert leg.loop.supervisor.fault_cause == ("watchdog timeout not confirmed: knee wrote 0.1 s, "
+                                               "no reply within 0.5 s")
+    assert 0.5 < leg.loop.supervisor.fault_t_s - t_arm <= 0.51
+
+
+def test_a_disarm_before_the_read_back_drops_the_expectation():
+    leg = Leg()
+    leg.watchdog_reads[0] = "silent"
+    leg.tick(3)
+    leg.loop.request_arm(leg.t)
+    leg.tick()
+    assert leg.loop.request_disarm(leg.t) is None
+    leg.tick(400)
+    assert leg.loop.phase is Phase.INACTIVE and not leg.loop.supervisor.pending_watchdog

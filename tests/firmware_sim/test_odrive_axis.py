@@ -209,7 +209,7 @@ def test_calibration_states_complete_instantly_to_idle():
     assert axis.stats["unsupported"] == 0
 
 
-@pytest.mark.parametrize("state", [0, 5, 14, 99, 0xFFFFFFFF])
+@pytest.mark.parametrize("state", [0, 5, 15, 99, 0xFFFFFFFF])
 def test_unknown_state_numbers_ignored_and_counted(state):
     axis, _, _ = make()
     arm(axis)
@@ -349,10 +349,12 @@ def test_get_reply_values():
     assert pw["Mechanical_Power"] == pytest.approx(0.5 * vel * 2 * math.pi, rel=1e-5)
     assert pw["Electrical_Power"] == pytest.approx((0.5 / KT) ** 2 * 0.04 + 0.5 * vel * 2 * math.pi, rel=1e-5)
     bus = ask(axis, "Get_Bus_Voltage_Current")
-    assert bus["Bus_Voltage"] == pytest.approx(24.0)
+    assert bus["Bus_Voltage"] == pytest.approx(24.0 - 0.2 * bus["Bus_Current"], rel=1e-6)  # sags under load
     assert bus["Bus_Current"] == pytest.approx(pw["Electrical_Power"] / 24.0, rel=1e-5)
     temps = ask(axis, "Get_Temperature")
-    assert temps["FET_Temperature"] == pytest.approx(25.0) and temps["Motor_Temperature"] == pytest.approx(25.0)
+    # the thermal model (firmware_sim.thermal) after one 1 ms step: still at the 25 C ambient
+    assert temps["FET_Temperature"] == pytest.approx(25.0, abs=0.01)
+    assert temps["Motor_Temperature"] == pytest.approx(25.0, abs=0.01)
     err = ask(axis, "Get_Error")
     assert err == {"Active_Errors": 0, "Disarm_Reason": 0}
 
@@ -496,12 +498,15 @@ def test_malformed_frames_do_not_feed_the_watchdog():
 
 def test_unknown_ids_extended_and_foreign_frames_are_counted():
     axis, _, _ = make()
-    for cmd in (0x04, 0x05, 0x08, 0x10, 0x1F):  # RxSdo, TxSdo, unused, traj limits: not in our DBC
+    for cmd in (0x08, 0x10, 0x1E):  # ids ODrive 0.6.10's DBC leaves unused
         assert axis.handle(can.Message(arbitration_id=NODE << 5 | cmd, data=b"\0" * 8, is_extended_id=False), 0.0) == []
-    assert axis.stats["unknown"] == 5
+    assert axis.stats["unknown"] == 3
+    # TxSdo is what the driver sends: received, it is malformed (no handler), not unknown
+    assert axis.handle(can.Message(arbitration_id=NODE << 5 | 0x05, data=b"\0" * 8, is_extended_id=False), 0.0) == []
+    assert axis.stats["unknown"] == 3 and axis.stats["malformed"] == 1
     ext = can.Message(arbitration_id=NODE << 5 | Cmd.SET_AXIS_STATE, data=b"\x08\0\0\0", is_extended_id=True)
     assert axis.handle(ext, 0.0) == []
-    assert axis.stats["unknown"] == 6
+    assert axis.stats["unknown"] == 4
     assert axis.handle(frame("Set_Axis_State", AxisState.CLOSED_LOOP_CONTROL, node=NODE + 1), 0.0) == []
     assert axis.stats["foreign"] == 1
     assert axis.state is AxisState.IDLE
@@ -868,3 +873,153 @@ def test_applied_torque_never_exceeds_kt_times_the_lower_current_limit(current_l
         assert abs(motor.torque_estimate_nm) <= limit_nm * (1 + 1e-12)
         assert abs(plant.torque("knee")) <= 6.0 * limit_nm * (1 + 1e-12)
         plant.step(DT)
+
+
+# --------------------------------------------------------------------------- ODrive 0.6.10's SDO, Address, DFU
+from protocol.contract import sdo_bits_value, sdo_value_bits  # noqa: E402
+from protocol.endpoints import BY_PATH, PLACEHOLDER, WATCHDOG_TIMEOUT  # noqa: E402
+
+
+def sdo(axis, opcode, path_or_id, raw=0, now=0.0):
+    endpoint_id = BY_PATH[path_or_id].id if isinstance(path_or_id, str) else path_or_id
+    return axis.handle(frame("RxSdo", opcode, endpoint_id, 0, raw), now)
+
+
+def sdo_read(axis, path, now=0.0):
+    (reply,) = sdo(axis, 0, path, now=now)
+    codec = C.codec("TxSdo")
+    assert reply.arbitration_id == arbitration_id(NODE, codec.cmd_id) and len(reply.data) == codec.dlc
+    values = codec.decode(reply.data)
+    assert values["Endpoint_ID"] == BY_PATH[path].id and values["Reserved0"] == 0
+    return values["Value"]
+
+
+def test_watchdog_timeout_written_through_rxsdo_reads_back_and_is_enforced():
+    axis, plant, _ = make(watchdog_timeout_s=0.1)
+    assert sdo_bits_value(sdo_read(axis, "axis0.config.watchdog_timeout")) == pytest.approx(0.1)
+    assert sdo_read(axis, "axis0.config.enable_watchdog") == 1
+    assert sdo(axis, 1, "axis0.config.watchdog_timeout", sdo_value_bits(0.3)) == []  # a write: no answer
+    assert sdo_bits_value(sdo_read(axis, "axis0.config.watchdog_timeout")) == pytest.approx(0.3)
+    assert axis.stats["sdo_writes"] == 1 and axis.stats["sdo_reads"] == 3
+    arm(axis, 0.0)
+    run(axis, plant, 0.0, 0.25)  # beyond the old 0.1 s, within the new 0.3 s
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL
+    run(axis, plant, 0.25, 0.1)
+    assert axis.state is AxisState.IDLE and axis.errors & AxisError.WATCHDOG_TIMER_EXPIRED
+    assert axis.stats["watchdog_trips"] == 1
+
+
+def test_watchdog_disabled_and_reenabled_through_sdo():
+    axis, plant, _ = make(watchdog_timeout_s=0.1)
+    sdo(axis, 1, "axis0.config.enable_watchdog", 0)
+    arm(axis, 0.0)
+    run(axis, plant, 0.0, 0.5)
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL
+    sdo(axis, 1, "axis0.config.enable_watchdog", 1, now=0.5)
+    run(axis, plant, 0.5, 0.2)
+    assert axis.stats["watchdog_trips"] == 1
+
+
+def test_sdo_gains_and_input_mode_read_and_write():
+    axis, _, _ = make()
+    sdo(axis, 1, "axis0.controller.config.pos_gain", sdo_value_bits(12.5))
+    sdo(axis, 1, "axis0.controller.config.vel_gain", sdo_value_bits(0.5))
+    sdo(axis, 1, "axis0.controller.config.vel_integrator_gain", sdo_value_bits(0.75))
+    sdo(axis, 1, "axis0.controller.config.input_mode", int(InputMode.TRAP_TRAJ))
+    assert (axis.pos_gain, axis.vel_gain, axis.vel_integrator_gain) == (12.5, 0.5, 0.75)
+    assert axis.input_mode is InputMode.TRAP_TRAJ
+    assert sdo_bits_value(sdo_read(axis, "axis0.controller.config.pos_gain")) == 12.5
+    assert sdo_read(axis, "axis0.controller.config.input_mode") == InputMode.TRAP_TRAJ
+    assert all(e.placeholder and not e.verified for e in PLACEHOLDER)
+    assert not WATCHDOG_TIMEOUT.verified and WATCHDOG_TIMEOUT.id == 200
+
+
+def test_sdo_bad_values_are_malformed_and_change_nothing():
+    axis, _, _ = make(watchdog_timeout_s=0.1)
+    sdo(axis, 1, "axis0.config.watchdog_timeout", sdo_value_bits(-1.0))
+    sdo(axis, 1, "axis0.config.watchdog_timeout", sdo_value_bits(math.nan))
+    sdo(axis, 1, "axis0.config.enable_watchdog", 2)
+    sdo(axis, 1, "axis0.controller.config.input_mode", 42)
+    sdo(axis, 7, "axis0.config.watchdog_timeout", 0)  # neither read nor write
+    assert axis.stats["malformed"] == 5 and axis.stats["sdo_writes"] == 0
+    assert axis.watchdog_timeout_s == 0.1 and axis.enable_watchdog and axis.input_mode is InputMode.PASSTHROUGH
+
+
+def test_sdo_unknown_endpoint_is_answered_with_nothing_and_counted():
+    axis, _, _ = make()
+    assert sdo(axis, 0, 0x1234) == []
+    assert sdo(axis, 1, 0x1234, 5) == []
+    assert sdo(axis, 0, "config.dc_bus_undervoltage_trip_level") == []  # in the table, not simulated
+    assert axis.stats["sdo_unknown_endpoint"] == 3 and axis.stats["malformed"] == 0
+
+
+def test_sdo_read_only_endpoints_and_requested_state():
+    axis, _, motor = make()
+    assert sdo_read(axis, "axis0.config.can.node_id") == NODE
+    assert sdo_read(axis, "axis0.current_state") == AxisState.IDLE
+    assert sdo_bits_value(sdo_read(axis, "axis0.pos_estimate")) == pytest.approx(motor.motor_state()[0], abs=1e-6)
+    sdo(axis, 1, "axis0.config.can.node_id", 9)
+    assert axis.stats["unsupported"] == 1 and axis.node_id == NODE
+    sdo(axis, 1, "axis0.requested_state", int(AxisState.CLOSED_LOOP_CONTROL))
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL
+    assert sdo_read(axis, "axis0.current_state") == AxisState.CLOSED_LOOP_CONTROL
+
+
+def test_sdo_read_in_4_bytes_as_odrives_example_sends_it():
+    axis, _, _ = make(watchdog_timeout_s=0.1)
+    codec = C.codec("RxSdo")
+    msg = can.Message(arbitration_id=arbitration_id(NODE, codec.cmd_id), is_extended_id=False,
+                      data=bytes([0]) + WATCHDOG_TIMEOUT.id.to_bytes(2, "little") + b"\0")
+    (reply,) = axis.handle(msg, 0.0)
+    assert sdo_bits_value(C.codec("TxSdo").decode(reply.data)["Value"]) == pytest.approx(0.1)
+
+
+def test_sdo_watchdog_setting_survives_a_reboot_only_when_saved():
+    axis, _, _ = make(watchdog_timeout_s=0.1)
+    sdo(axis, 1, "axis0.config.watchdog_timeout", sdo_value_bits(0.25))
+    axis.handle(frame("Reboot", 0), 0.0)
+    assert axis.watchdog_timeout_s == 0.1
+    sdo(axis, 1, "axis0.config.watchdog_timeout", sdo_value_bits(0.25))
+    axis.handle(frame("Reboot", 1), 0.0)  # save configuration, then reboot
+    assert axis.watchdog_timeout_s == pytest.approx(0.25)
+
+
+def test_enter_dfu_mode_is_refused_and_counted():
+    axis, _, _ = make()
+    arm(axis)
+    assert axis.handle(frame("Enter_DFU_Mode"), 0.01) == []
+    assert axis.stats["dfu_refused"] == 1 and axis.stats["malformed"] == 0
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL and not axis.errors
+
+
+def test_address_is_answered_with_node_id_and_a_stable_serial_number():
+    axis, _, _ = make()
+    values = ask(axis, "Address")
+    assert values["Node_ID"] == NODE
+    serial = values["Serial_Number"]
+    assert 0 < serial < 1 << 48
+    assert ask(make()[0], "Address")["Serial_Number"] == serial  # the same board, the same number
+    other = make(node=NODE + 1)[0].handle(rtr("Address", node=NODE + 1), 0.0)[0]
+    assert C.codec("Address").decode(other.data)["Serial_Number"] != serial
+    assert ask(make(serial_number=0x123456789ABC)[0], "Address")["Serial_Number"] == 0x123456789ABC
+    with pytest.raises(ValueError):
+        DriverConfig(node_id=1, serial_number=1 << 48)
+
+
+def test_version_is_an_odrive_pro_v4_4_58_with_firmware_0_6_10():
+    values = ask(make()[0], "Get_Version")
+    hw = (values["Hw_Version_Major"], values["Hw_Version_Minor"], values["Hw_Version_Variant"])
+    fw = (values["Fw_Version_Major"], values["Fw_Version_Minor"], values["Fw_Version_Revision"])
+    assert hw == (4, 4, 58) and fw == (0, 6, 10)
+
+
+@pytest.mark.parametrize("length", [4, 8])
+def test_set_axis_state_in_4_or_8_bytes(length):
+    axis, _, _ = make()
+    msg = can.Message(arbitration_id=arbitration_id(NODE, Cmd.SET_AXIS_STATE), is_extended_id=False,
+                      data=int(AxisState.CLOSED_LOOP_CONTROL).to_bytes(length, "little"))
+    axis.handle(msg, 0.0)
+    assert axis.state is AxisState.CLOSED_LOOP_CONTROL and axis.stats["malformed"] == 0
+    short = can.Message(arbitration_id=arbitration_id(NODE, Cmd.SET_AXIS_STATE), is_extended_id=False, data=b"\1\0\0")
+    axis.handle(short, 0.0)
+    assert axis.stats["malformed"] == 1 and axis.state is AxisState.CLOSED_LOOP_CONTROL

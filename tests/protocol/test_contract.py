@@ -12,17 +12,18 @@ from protocol import BusContract, Cmd, Frame, SENSOR_BOARD_NODE_ID, arbitration_
 
 contract = BusContract.load()
 
-# ODrive CANSimple (firmware 0.6): cmd id, DLC, and the signals' (start bit, length) as published.
+# ODrive CANSimple (firmware 0.6.10): cmd id, DLC, and the signals' (start bit, length) as published
+# (the whole contract against ODrive's own DBC: test_reference.py).
 ODRIVE_LAYOUT = {
     "Heartbeat": (0x01, 8, {"Axis_Error": (0, 32), "Axis_State": (32, 8), "Procedure_Result": (40, 8)}),
     "Estop": (0x02, 0, {}),
     "Get_Error": (0x03, 8, {"Active_Errors": (0, 32), "Disarm_Reason": (32, 32)}),
-    "Set_Axis_State": (0x07, 4, {"Axis_Requested_State": (0, 32)}),
+    "Set_Axis_State": (0x07, 8, {"Axis_Requested_State": (0, 32)}),
     "Get_Encoder_Estimates": (0x09, 8, {"Pos_Estimate": (0, 32), "Vel_Estimate": (32, 32)}),
     "Set_Controller_Mode": (0x0B, 8, {"Control_Mode": (0, 32), "Input_Mode": (32, 32)}),
     "Set_Input_Pos": (0x0C, 8, {"Input_Pos": (0, 32), "Vel_FF": (32, 16), "Torque_FF": (48, 16)}),
     "Set_Input_Vel": (0x0D, 8, {"Input_Vel": (0, 32), "Input_Torque_FF": (32, 32)}),
-    "Set_Input_Torque": (0x0E, 4, {"Input_Torque": (0, 32)}),
+    "Set_Input_Torque": (0x0E, 8, {"Input_Torque": (0, 32)}),
     "Set_Limits": (0x0F, 8, {"Velocity_Limit": (0, 32), "Current_Limit": (32, 32)}),
     "Get_Iq": (0x14, 8, {"Iq_Setpoint": (0, 32), "Iq_Measured": (32, 32)}),
     "Get_Bus_Voltage_Current": (0x17, 8, {"Bus_Voltage": (0, 32), "Bus_Current": (32, 32)}),
@@ -57,7 +58,9 @@ def test_arbitration_ids_are_node_shifted_by_five():
     route = contract.route(0x6C)
     assert route is not None and route.node_id == 3 and route.codec.name == "Set_Input_Pos"
     assert contract.route(arbitration_id(SENSOR_BOARD_NODE_ID, 0x08)).codec.name == "SB_Range"
-    assert contract.route(0x7FF) is None
+    assert contract.route(0x7FF).codec.name == "Enter_DFU_Mode"  # node 63, cmd 0x1F
+    for unused in (0x08, 0x0A, 0x10, 0x1E):  # cmd ids ODrive leaves unused
+        assert contract.route(arbitration_id(63, unused)) is None
     with pytest.raises(ValueError):
         arbitration_id(64, 1)
 
@@ -121,6 +124,8 @@ def test_frame_bits_bounds_and_stuffing():
 
 def test_the_contract_knows_what_only_the_master_sends():
     c = BusContract.load()
-    assert c.odrive_master_cmds == frozenset({2, 7, 11, 12, 13, 14, 15, 22, 24, 25, 26, 27})
-    assert {"Set_Input_Pos", "Set_Axis_State", "Estop", "Clear_Errors"} <= c.master_messages
-    assert not c.master_messages & {"Heartbeat", "Get_Encoder_Estimates", "SB_Range", "SB_Heartbeat"}
+    assert c.odrive_master_cmds == frozenset({2, 4, 7, 11, 12, 13, 14, 15, 17, 18, 19, 22, 24, 25, 26, 27, 31})
+    assert {"Set_Input_Pos", "Set_Axis_State", "Estop", "Clear_Errors", "RxSdo", "Enter_DFU_Mode"} <= c.master_messages
+    assert not c.master_messages & {"Heartbeat", "Get_Encoder_Estimates", "SB_Range", "SB_Heartbeat", "TxSdo"}
+    # Address is sent by the master and answered by the ODrive: hearing it proves no other master.
+    assert "Address" not in c.master_messages and set(c.codec("Address").message.senders) == {"Controller", "ODrive"}

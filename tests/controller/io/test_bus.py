@@ -54,7 +54,7 @@ def test_malformed_unknown_and_nan_frames_are_counted_and_dropped(buses):
         can.Message(arbitration_id=0x09, is_remote_frame=True, dlc=8, is_extended_id=False),  # RTR
         can.Message(arbitration_id=0x09, data=b"\x00" * 8, is_extended_id=True),  # extended id
         encoder(0, math.nan),  # NaN reading
-        can.Message(arbitration_id=0x01, data=b"\x00\x00\x00\x00\x05\x00\x00\x00", is_extended_id=False),
+        can.Message(arbitration_id=0x01, data=b"\x00\x00\x00\x00\x0f\x00\x00\x00", is_extended_id=False),
     ]
     for msg in bad:
         theirs.send(msg)
@@ -62,7 +62,7 @@ def test_malformed_unknown_and_nan_frames_are_counted_and_dropped(buses):
     loop.tick(0.0)
     assert loop.io.dropped["unknown"] == 3
     assert loop.io.dropped["malformed"] == 1
-    assert loop.io.dropped["invalid"] == 2  # NaN and axis state 5 (not an ODrive state)
+    assert loop.io.dropped["invalid"] == 2  # NaN and axis state 15 (not an ODrive state)
     assert loop.io.rx["Get_Encoder_Estimates"] == 1
     assert loop.hip.pos_rad == pytest.approx(1.5 * 2 * math.pi / 6.0)
 
@@ -158,7 +158,7 @@ def test_every_received_frame_is_accepted_or_dropped_under_one_named_reason():
         ("invalid", encoder(0, 0.5, math.inf)),
         ("invalid", encoder(0, 1e30, 0.0)),  # a corrupted exponent: no joint is there
         ("invalid", encoder(1, 5.0, 0.0)),  # knee 5 rev = -5.2 rad: 3 rad outside its range
-        ("invalid", heartbeat(0, state=5)),  # 5 is no ODrive axis state
+        ("invalid", heartbeat(0, state=15)),  # 15 is no ODrive axis state
         ("invalid", data_frame(0x208, RANGE.pack(10.0, 1, 0))),  # 10 m: beyond the sensor's 3 m
         ("invalid", data_frame(0x208, RANGE.pack(1.0, 2, 1))),  # Range_Valid 2
         ("invalid", data_frame(0x20A, CONTACTS.pack(2, 0, 0))),  # a contact bit 2
@@ -190,7 +190,7 @@ def test_a_bad_heartbeat_changes_nothing():
     io, bus, (hip, _), _ = make_io()
     bus.push(heartbeat(0, AxisState.CLOSED_LOOP_CONTROL))
     io.drain(0.0)
-    bus.push(heartbeat(0, state=5, error=0x800))
+    bus.push(heartbeat(0, state=15, error=0x800))
     io.drain(0.1)
     assert hip.state is AxisState.CLOSED_LOOP_CONTROL and hip.error == 0 and hip.heartbeat_t_s == 0.0
 
@@ -404,14 +404,17 @@ def test_an_encoder_jump_no_joint_makes_is_dropped():
     assert link.on_encoder((1.3, 0.0), 0.1)  # 0.29 rad in 98 ms: fine
 
 
-def test_a_heartbeat_with_an_error_in_closed_loop_or_unknown_bits_is_dropped():
+def test_a_heartbeat_with_unknown_bits_is_dropped_and_one_with_an_error_in_closed_loop_applied():
     io, bus, (hip, _), _ = make_io()
     bus.push(heartbeat(0, AxisState.CLOSED_LOOP_CONTROL))
     io.drain(0.0)
-    bus.push(heartbeat(0, AxisState.CLOSED_LOOP_CONTROL, error=0x1000000))  # ODrive disarms on errors
     bus.push(heartbeat(0, AxisState.IDLE, error=0x80000000))  # no such Axis_Error bit in 0.6
     io.drain(0.1)
-    assert hip.closed_loop and hip.heartbeat_t_s == 0.0 and io.dropped["invalid"] == 2
+    assert hip.closed_loop and hip.heartbeat_t_s == 0.0 and io.dropped["invalid"] == 1
+    bus.push(heartbeat(0, AxisState.CLOSED_LOOP_CONTROL, error=0x1000000))  # acted on at once (issue 14)
+    io.drain(0.15)
+    assert not hip.closed_loop and hip.error == 0x1000000 and hip.heartbeat_t_s == 0.15
+    assert io.dropped["invalid"] == 1
     bus.push(heartbeat(0, AxisState.IDLE, error=0x1000000))  # a real watchdog trip
     io.drain(0.2)
     assert not hip.closed_loop and hip.error == 0x1000000 and hip.state is AxisState.IDLE

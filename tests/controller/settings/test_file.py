@@ -288,6 +288,8 @@ BAD = [
     ("height.beam_heights_m", "[0.6]", ["[0.001, 0.5] m"]),
     ("height.beam_heights_m", "[0.09, 0.05]", ["strictly increasing"]),
     ("height.seen_fraction", "0", ["[0.01, 1] (fraction of samples)"]),
+    ("health.max_motor_temp_c", "500", ["[0, 200] C"]),
+    ("health.read_period_s", "0", ["[0.001, 10] s"]),
 ]
 
 

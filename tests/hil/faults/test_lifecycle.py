@@ -27,6 +27,18 @@ def test_a_second_master_is_a_latched_fault_in_the_first_tick(tmp_path):
     assert row["commands_outside_limits"] == 0
 
 
+@pytest.mark.parametrize("name,cause", [("over_temperature", "hip motor temperature 90."),
+                                        ("bus_undervoltage", "bus voltage 14.9 V below 18 V")])
+def test_a_health_bound_crossed_while_walking_stops_the_leg_within_a_read_period(name, cause, tmp_path):
+    row = lifecycle.ROWS[name](tmp_path)
+    assert cause in row["fault_cause"] and row["bound_crossed_s"] is not None
+    # the reading comes at most one read period (0.1 s) after the crossing, the fault in the tick
+    # that drains it, every axis IDLE in the physics step after
+    assert row["safe_state_ms"] is not None and row["safe_state_ms"] <= row["read_period_s"] * 1e3 + 10
+    assert row["detect_ms"] <= row["safe_state_ms"]
+    assert row["commands_outside_limits"] == 0 and row["data_lost"] is False
+
+
 @pytest.mark.slow
 def test_the_daemon_rows_keep_every_weights_file_and_stop_in_order(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # a relative --out, as a person types it
