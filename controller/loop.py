@@ -168,7 +168,8 @@ class ControlLoop:
             self._another_master(now_s)
         before = sup.phase
         sup.update(now_s)
-        sup.check_watchdog_confirmations(now_s)
+        for a in sup.check_watchdog_confirmations(now_s):
+            self._write_watchdog(a, now_s)  # no read-back yet, or another value: again
         phase = sup.phase
         if phase is Phase.INACTIVE:
             if before is Phase.WAIT_NODES:

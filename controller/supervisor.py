@@ -110,7 +110,7 @@ class Supervisor:
                  bringup_timeout_s: float, stale_heartbeat_s: float = math.inf,
                  health: HealthConfig = HealthConfig()) -> None:
         self.axes = axes
-        self.pending_watchdog: dict[str, tuple[AxisLink, float, float]] = {}  # name -> (axis, written, sent at)
+        self.pending_watchdog: dict[str, tuple] = {}  # name -> (axis, written, first sent, last sent, last read)
         self.health = health
         self.sensors = sensors
         self.silence_timeout_s = silence_timeout_s
@@ -223,38 +223,53 @@ class Supervisor:
 
     # -- the drivers' watchdog timeout, written with the arming frames and read back ---------------
     SDO_REPLY_TIMEOUT_S = 0.5
-    """A read-back (TxSdo) not received this long after the RxSdo read is a FAULT [s]."""
+    """The write and read-back of the watchdog timeout must agree within this long of the first
+    write, else a FAULT [s]."""
+    SDO_RETRY_S = 0.1
+    """No read-back this long after the last exchange, or one with another value (the write may
+    have been lost on the bus): write and read again [s]."""
 
     def expect_watchdog(self, axis: AxisLink, written_s: float, now_s: float) -> None:
         """``axis`` was sent RxSdo writing ``written_s`` (as the float32 on the bus) to
         axis0.config.watchdog_timeout and a read of it at ``now_s``: :meth:`check_watchdog_confirmations`
-        checks the reply when it comes. Arming does not wait for it."""
-        self.pending_watchdog[axis.name] = (axis, sdo_bits_value(sdo_value_bits(written_s)), now_s)
+        checks the reply when it comes (a repeated exchange keeps the first one's deadline). Arming
+        does not wait for it."""
+        written = sdo_bits_value(sdo_value_bits(written_s))
+        first = self.pending_watchdog.get(axis.name, (axis, written, now_s, now_s, None))[2]
+        self.pending_watchdog[axis.name] = (axis, written, first, now_s, None)
 
-    def check_watchdog_confirmations(self, now_s: float) -> None:
-        """Each expected read-back: the same value confirms it (logged); another value, or none
-        within :attr:`SDO_REPLY_TIMEOUT_S`, is a latched FAULT. Outside the active phases the
-        expectations are dropped (a disarm or a fault ends the arming they belonged to)."""
+    def check_watchdog_confirmations(self, now_s: float) -> list[AxisLink]:
+        """Each expected read-back: the same value confirms it (logged). No reply within
+        :attr:`SDO_RETRY_S` of the last exchange, or another value, before
+        :attr:`SDO_REPLY_TIMEOUT_S` has passed since the first: the axes returned, for the loop to
+        write and read again (frames get lost; a lost write reads back the old value). At the
+        deadline, a latched FAULT naming what was written and what was read. Outside the active
+        phases the expectations are dropped (a disarm or a fault ends the arming they belonged to)."""
         pending = self.pending_watchdog
         if not pending:
-            return
+            return []
         if self.phase not in ACTIVE_PHASES:
             pending.clear()
-            return
-        for name, (axis, written, sent_s) in list(pending.items()):
-            read = axis.sdo_reply(WATCHDOG_TIMEOUT, since_s=sent_s)
-            if read is not None:
+            return []
+        again = []
+        for name, (axis, written, first_s, last_s, last_read) in list(pending.items()):
+            read = axis.sdo_reply(WATCHDOG_TIMEOUT, since_s=last_s)
+            if read is not None and read == written:
                 del pending[name]
-                if read != written:
-                    pending.clear()
-                    self.fault(f"watchdog timeout not confirmed: {name} wrote {written:g} s, read {read:g} s", now_s)
-                    return
                 log.info("watchdog timeout confirmed: %s reads %g s", name, read)
-            elif now_s - sent_s > self.SDO_REPLY_TIMEOUT_S:
+                continue
+            if read is not None:
+                last_read = read
+                pending[name] = (axis, written, first_s, last_s, read)
+            if now_s - first_s > self.SDO_REPLY_TIMEOUT_S:
                 pending.clear()
-                self.fault(f"watchdog timeout not confirmed: {name} wrote {written:g} s, no reply within "
-                           f"{self.SDO_REPLY_TIMEOUT_S:g} s", now_s)
-                return
+                got = (f"no reply within {self.SDO_REPLY_TIMEOUT_S:g} s" if last_read is None else
+                       f"read {last_read:g} s (written and read again for {self.SDO_REPLY_TIMEOUT_S:g} s)")
+                self.fault(f"watchdog timeout not confirmed: {name} wrote {written:g} s, {got}", now_s)
+                return []
+            if read is not None or now_s - last_s >= self.SDO_RETRY_S:
+                again.append(axis)
+        return again
 
     def arm_due(self, now_s: float) -> bool:
         if now_s - self.last_arm_request_s >= self.ARM_RETRY_S:

@@ -43,6 +43,13 @@ class Profile:
             a write to the host's file system stalls the whole VM for its duration).
         coarse_time_preload: give the firmware-sim process the coarse-clock preload (PyBullet's
             profiler reads gettimeofday() several times a step, a trapped system call in UML).
+        driver_watchdog_s: the drivers' command watchdog of a session's controller (its
+            ``[drivers] watchdog_timeout_s``, which the controller writes to every driver through
+            RxSdo at arming and reads back), or None to keep the configured one [s]. Inside UML
+            the four processes of a fault session (plant, controller, man-in-the-middle node,
+            harness) share one slow virtual CPU, and any one of them can stall for tens of ms;
+            a longer watchdog keeps such a stall from stopping the leg, while the kill and silence
+            rows still measure the drivers' watchdog, against the bound it gives.
     """
 
     name: str
@@ -52,6 +59,7 @@ class Profile:
     safe_state_tolerance_ms: float
     work_on_shm: bool
     coarse_time_preload: bool
+    driver_watchdog_s: float | None = None
 
     @property
     def uml(self) -> bool:
@@ -77,7 +85,7 @@ class Profile:
 NATIVE = Profile(name="native", mitm_poll_s=0.0005, plant_steps_per_wake=1, min_silence_periods=None,
                  safe_state_tolerance_ms=20.0, work_on_shm=False, coarse_time_preload=False)
 UML = Profile(name="uml", mitm_poll_s=0.002, plant_steps_per_wake=2, min_silence_periods=10.0,
-              safe_state_tolerance_ms=50.0, work_on_shm=True, coarse_time_preload=True)
+              safe_state_tolerance_ms=50.0, work_on_shm=True, coarse_time_preload=True, driver_watchdog_s=0.3)
 PROFILES = {p.name: p for p in (NATIVE, UML)}
 
 

@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from controller.config import ControllerConfig
-from controller.settings.file import BusSettings, CalibrationSettings, DeployConfig, ServiceSettings, load_config
+from controller.settings.file import (BusSettings, CalibrationSettings, DeployConfig, DriverSettings, ServiceSettings,
+                                     load_config)
 
 log = logging.getLogger(__name__)
 
@@ -80,12 +81,15 @@ def daemon_settings(config_path: str | Path | None, interface: str | None = None
                           config.weights.save_every_s if save_every_s is None else save_every_s, config)
 
 
-def session_config(controller: ControllerConfig, channel: str, control_socket: str | Path) -> DeployConfig:
+def session_config(controller: ControllerConfig, channel: str, control_socket: str | Path,
+                   drivers_watchdog_s: float | None = None) -> DeployConfig:
     """The configuration file of a harness session with the simulated leg: ``controller`` on
     SocketCAN ``channel`` (a vcan), its control socket at ``control_socket`` (in the session's own
     folder, so sessions never meet on one socket), and the simulated leg's calibration confirmed
-    (it is exact by construction, as in ``configs/sim.toml``)."""
-    return DeployConfig(bus=BusSettings(interface="socketcan", channel=channel), controller=controller,
+    (it is exact by construction, as in ``configs/sim.toml``); ``drivers_watchdog_s``: the drivers'
+    watchdog the controller writes at arming (None: the default)."""
+    drivers = DriverSettings() if drivers_watchdog_s is None else DriverSettings(watchdog_timeout_s=drivers_watchdog_s)
+    return DeployConfig(bus=BusSettings(interface="socketcan", channel=channel), controller=controller, drivers=drivers,
                         service=ServiceSettings(control_socket=str(control_socket)),
                         calibration=CalibrationSettings(confirmed=True, bringup="the simulated leg (firmware_sim): "
                                                         "calibration exact by construction"))

@@ -240,11 +240,13 @@ def run_hil_pair(seconds: float, work: Path, channel: str, seed: int, bringup_ti
     from hil.session.outcome import HilError
     from hil.session.recorder import BusRecorder
     from hil.session.run import session_controller_config, session_envs, stop_session
+    from hil.profile import current as current_profile
     from hil.session.scenario import ScenarioClient
     from hil.experiments.learn import LearnConfig
 
     ctl_config = session_controller_config(LearnConfig(trials=1, seed=seed))  # auto_arm: it arms by itself
-    write_config(work / "controller.toml", session_config(ctl_config, channel, work / "control.sock"),
+    write_config(work / "controller.toml", session_config(ctl_config, channel, work / "control.sock",
+                                                        current_profile().driver_watchdog_s),
                  header="the controller's configuration in this bench --hil run (written by hil.bench.socketcan)")
     records_path, ticks_path = work / "controller.jsonl", work / "controller.ticks"
     recorder = BusRecorder(channel, work / "bus.log")

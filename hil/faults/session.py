@@ -75,11 +75,14 @@ def leg_axes() -> dict[str, int]:
 
 
 def driver_timing_s() -> tuple[float, float]:
-    """(the drivers' command watchdog timeout, their heartbeat period) [s]."""
+    """(the drivers' command watchdog timeout in a session on this platform, their heartbeat
+    period) [s]: the platform's allowance (:attr:`hil.profile.Profile.driver_watchdog_s`, which the
+    session's controller writes to the drivers at arming), else the drivers' own."""
     from firmware_sim.leg import LegHardware
+    from hil.profile import current
 
     d = LegHardware().driver
-    return d.watchdog_timeout_s, d.heartbeat_period_s
+    return current().driver_watchdog_s or d.watchdog_timeout_s, d.heartbeat_period_s
 
 
 @dataclass(frozen=True)

@@ -165,7 +165,8 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     config = LearnConfig(trials=trials, seed=seed, obstacle_height_m=obstacle_height_m, range_noise_m=range_noise_m,
                          learning=learning)
     ctl_config = session_controller_config(config)
-    write_config(work / "controller.toml", session_config(ctl_config, channel, work / "control.sock"),
+    write_config(work / "controller.toml", session_config(ctl_config, channel, work / "control.sock",
+                                                        current_profile().driver_watchdog_s),
                  header="the controller's configuration in this hil session (written by hil.session.run)")
     (out / "controller.json").unlink(missing_ok=True)  # an older session's (replay would prefer the TOML anyway)
     records_path = work / "controller.jsonl"

@@ -50,6 +50,7 @@ class Leg:
         # The drivers' SDO: each answers a read with what was written to it (``watchdog_reads``:
         # a value it answers instead; "silent": no answer at all), the tick after.
         self.watchdog_reads: dict[int, float | str | None] = {0: None, 1: None}
+        self.lose_sdo: dict[int, int] = {0: 0, 1: 0}  # the next N RxSdo frames to a node are lost
         self.written: dict[int, int] = {}
         self._sdo_seen = 0
 
@@ -60,6 +61,9 @@ class Leg:
             if cmd != RXSDO.cmd_id:
                 continue
             opcode, endpoint_id, _reserved, raw = RXSDO.unpack(m.data)
+            if self.lose_sdo[node]:
+                self.lose_sdo[node] -= 1
+                continue
             if opcode == 1:
                 self.written[node] = int(raw)
             elif self.watchdog_reads[node] != "silent":
@@ -367,13 +371,25 @@ def test_arming_writes_the_drivers_watchdog_and_confirms_it_without_waiting():
 def test_a_driver_reading_back_another_watchdog_timeout_is_a_latched_fault(caplog):
     leg = Leg()
     leg.watchdog_reads[0] = 0.2  # the hip's driver answers 0.2 s whatever was written
-    _arm_and_run(leg, 20)
+    _arm_and_run(leg, 300)
     sup = leg.loop.supervisor
     assert leg.loop.phase is Phase.FAULT
-    assert sup.fault_cause == "watchdog timeout not confirmed: hip wrote 0.1 s, read 0.2 s"
+    assert sup.fault_cause == ("watchdog timeout not confirmed: hip wrote 0.1 s, read 0.2 s "
+                               "(written and read again for 0.5 s)")
     leg.tick(100)
     assert leg.loop.phase is Phase.FAULT  # latched
     assert leg.sent("Set_Axis_State", 0) >= 2  # IDLE sent
+
+
+@pytest.mark.parametrize("lost", [1, 2, 3])
+def test_a_lost_write_or_read_is_sent_again_and_confirmed_without_a_fault(lost):
+    """Frames get lost: a lost write reads back the old value, a lost read gets no reply; either
+    way the controller writes and reads again until the values agree (within 0.5 s)."""
+    leg = Leg()
+    leg.lose_sdo[1] = lost  # 1: the write; 2: the write and the read; 3: the write, the read, the next write
+    _arm_and_run(leg, 400)
+    assert leg.loop.phase is Phase.RAMP and not leg.loop.supervisor.pending_watchdog  # no fault
+    assert len(_sdo_sent(leg, 1)) >= 4 and len(_sdo_sent(leg, 0)) == 2  # the knee's exchange again, the hip's once
 
 
 def test_no_watchdog_read_back_within_half_a_second_is_a_fault_while_arming_goes_on():

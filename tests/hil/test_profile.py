@@ -23,6 +23,7 @@ def test_the_allowances_of_each_platform():
     assert (n.plant_steps_per_wake, u.plant_steps_per_wake) == (1, 2)
     assert (n.safe_state_tolerance_ms, u.safe_state_tolerance_ms) == (20.0, 50.0)
     assert (n.work_on_shm, u.work_on_shm) == (False, True)
+    assert (n.driver_watchdog_s, u.driver_watchdog_s) == (None, 0.3)
     ctl = ControllerConfig()
     assert n.controller_config(ctl) is ctl
     patient = u.controller_config(ctl)

@@ -156,17 +156,21 @@ def test_kill_9_of_the_controller_leaves_every_axis_idle_within_the_bound(kill_r
     assert done.returncode == 0, f"{h['error']}\n{done.stderr[-3000:]}"
     assert f["kind"] == "kill" and f["at_trial"] == KILL_AT and h["trials_completed"] == KILL_AT
     assert f["states_before"] == {"hip": "CLOSED_LOOP_CONTROL", "knee": "CLOSED_LOOP_CONTROL"}
-    # The bound: the drivers' watchdog (0.1 s) plus one heartbeat period (0.1 s), as the leg's
-    # heartbeats show it. Both run on the plant process's clock, so a stall of that process
-    # delays them by as much: the slack is the longest period that process had in this very
-    # session (measured, not a wall-clock budget), plus the man-in-the-middle's 2 ms poll.
-    assert f["bound_ms"] == pytest.approx(200.0)
+    # The bound: the drivers' watchdog (0.1 s, or the platform's allowance inside User-Mode Linux,
+    # which the controller wrote to the drivers at arming) plus one heartbeat period (0.1 s), as
+    # the leg's heartbeats show it. Both run on the plant process's clock, so a stall of that
+    # process delays them by as much: the slack is the longest period that process had in this
+    # very session (measured, not a wall-clock budget), plus the man-in-the-middle's 2 ms poll.
+    from hil.profile import named
+
+    watchdog_ms = (named(h["where"]).driver_watchdog_s or 0.1) * 1e3
+    assert f["bound_ms"] == pytest.approx(watchdog_ms + 100.0)
     stall_ms = m["timing"]["firmware"]["max_period_us"] / 1e3
     assert f["safe_state_ms"] is not None
     assert f["safe_state_ms"] <= f["bound_ms"] + stall_ms + 3.0, (f, stall_ms)
     for axis in ("hip", "knee"):  # each driver went IDLE on its watchdog, before its heartbeat said so
         assert f["driver_idle_ms"][axis] is not None
-        assert f["driver_idle_ms"][axis] <= 100.0 + stall_ms + 3.0, (f, stall_ms)
+        assert f["driver_idle_ms"][axis] <= watchdog_ms + stall_ms + 3.0, (f, stall_ms)
         assert f["driver_idle_ms"][axis] <= f["axes_idle_ms"][axis] + 5.0
     assert f["watchdog_trips_after_event"] == 2  # both axes stopped by their own watchdogs
     assert f["axes_after"] == {"hip": "IDLE", "knee": "IDLE"}
