@@ -83,20 +83,25 @@ def _align(inbound: list[can.Message], t_log: list[float], counts: list[int]) ->
 
 
 def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, tick_times: list[float] | None = None,
-           tick_counts: list[int] | None = None, clock_offset_s: float | None = None) -> dict[str, Any]:
+           tick_counts: list[int] | None = None, clock_offset_s: float | None = None,
+           drivers_watchdog_s: float | None = None) -> dict[str, Any]:
     """Replay ``log``. With ``tick_times`` (the live loop's clock at each tick, from
     ``controller.ticks``), ``tick_counts`` (frames it read in each tick) and ``clock_offset_s``
     (log timestamp minus that clock), the loop ticks when the live one did and reads in each
     tick exactly the frames it read; otherwise the ticks are recovered from the log.
 
     The replayed controller arms by itself (``auto_arm``) as soon as every node is heard: a log
-    holds no operator's command, and sessions recorded before the lifecycle existed armed so."""
+    holds no operator's command, and sessions recorded before the lifecycle existed armed so.
+    ``drivers_watchdog_s``: the drivers' watchdog the live controller wrote at arming (its
+    configuration's ``[drivers]``), so the replayed one expects the same read-back."""
     config = dataclasses.replace(config, auto_arm=True)
     frames = [m for m in can.LogReader(str(log)) if not m.is_error_frame]
     frames.sort(key=lambda m: m.timestamp)
     hip_id = next(a.node_id for a in config.axes if a.name == "hip")
     bus = ReplayBus()
     loop = ControlLoop(config, bus)
+    if drivers_watchdog_s is not None:
+        loop.drivers_watchdog_timeout_s = drivers_watchdog_s
     first_ctl = next((i for i, m in enumerate(frames) if _is_controller(m)), None)
     if first_ctl is None:
         raise ValueError(f"{log}: no frame from the controller in the log")
@@ -178,6 +183,11 @@ def main_replay(args) -> int:
         candidates = (log.parent / "controller.toml", log.parent / "controller.json")
         cfg_path = next((p for p in candidates if p.exists()), None)
     config = load_controller_config(cfg_path)
+    drivers_watchdog_s = None
+    if cfg_path is not None and Path(cfg_path).suffix.lower() == ".toml":
+        from controller.settings.file import load_config
+
+        drivers_watchdog_s = load_config(cfg_path).drivers.watchdog_timeout_s
     tick_times = tick_counts = offset = None
     ticks_path = log.parent / "controller.ticks"
     rec_path = Path(args.records) if args.records else log.parent / "controller.jsonl"
@@ -191,7 +201,8 @@ def main_replay(args) -> int:
             pairs = arr.tolist()
             tick_times, tick_counts = pairs[0::2], [int(n) for n in pairs[1::2]]
             offset = clock[0]["realtime_minus_monotonic_s"]
-    result = replay(log, config, tick_times=tick_times, tick_counts=tick_counts, clock_offset_s=offset)
+    result = replay(log, config, tick_times=tick_times, tick_counts=tick_counts, clock_offset_s=offset,
+                    drivers_watchdog_s=drivers_watchdog_s)
     result["config"] = None if cfg_path is None else str(cfg_path)
     live = read_records(rec_path)["step"] if rec_path.exists() else None
     if live is not None:
