@@ -115,7 +115,6 @@ Behaviour, and where the simulation simplifies the firmware:
 
 from __future__ import annotations
 
-import enum
 import hashlib
 import math
 from dataclasses import dataclass
@@ -139,30 +138,12 @@ from protocol.contract import (
 from protocol.endpoints import BY_ID as ENDPOINTS_BY_ID
 from protocol.endpoints import SDO_OPCODE_READ, SDO_OPCODE_WRITE, Endpoint
 from protocol.frame import data_frame
-from protocol.odrive import AxisError, AxisState, Cmd, ControlMode, InputMode
+from protocol.odrive import AxisError, AxisState, Cmd, ControlMode, InputMode, ProcedureResult, RebootAction
 
 PROTOCOL_VERSION = 2
 """Get_Version.Protocol_Version reported by firmware 0.6."""
 
 _SCHEDULE_EPS_S = 1e-9
-
-
-class ProcedureResult(enum.IntEnum):
-    """Heartbeat.Procedure_Result values used by the simulation (ODrive 0.6 numbering)."""
-
-    SUCCESS = 0
-    BUSY = 1
-    CANCELLED = 2
-    DISARMED = 3
-
-
-class RebootAction(enum.IntEnum):
-    """Reboot.Action values (firmware 0.6)."""
-
-    REBOOT = 0
-    SAVE_CONFIGURATION = 1
-    ERASE_CONFIGURATION = 2
-    ENTER_DFU_MODE = 3
 
 
 # SENSORLESS_CONTROL (a control state, not a procedure) is not simulated: "unsupported".
