@@ -22,9 +22,9 @@ from typing import Any
 def fsync_dir(folder: str | os.PathLike) -> None:
     """Make a rename in ``folder`` durable (a no-op where directories cannot be opened)."""
     try:
-        fd = os.open(folder, os.O_RDONLY)
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
     except OSError:
-        return
+        return  # a platform without directory fds: the rename is as durable as it gets
     try:
         os.fsync(fd)
     except OSError:

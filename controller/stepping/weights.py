@@ -55,6 +55,8 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.atomic import fsync_dir
+
 log = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 2
@@ -104,7 +106,7 @@ def set_aside(path: str | Path, now: float | None = None) -> Path:
         n += 1
         target = path.with_name(f"{path.name}.incompatible-{stamp}-{n}")
     os.rename(path, target)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     return target
 
 
@@ -144,19 +146,6 @@ def stale_temporaries(path: str | Path) -> list[Path]:
         if field.isdigit() and int(field) != os.getpid() and not _pid_alive(int(field)):
             stale.append(Path(name))
     return stale
-
-
-def _fsync_dir(folder: Path) -> None:
-    try:
-        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    except OSError:
-        return  # a platform without directory fds: the rename is as durable as it gets
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _keep_previous(path: Path) -> None:
@@ -232,7 +221,7 @@ def save_weights(path: str | Path, weights: np.ndarray, cell_width_m: float, gen
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 # -- loading -----------------------------------------------------------------------------------
