@@ -126,13 +126,17 @@ def test_auto_arm_never_clears_a_latched_error():
     assert leg.sent("Clear_Errors") == 0 and leg.sent("Set_Axis_State") == 0 and leg.sent("Set_Input_Pos") == 0
 
 
-def test_arming_sends_no_clear_errors_and_reaches_walk():
-    leg = Leg()
+def arm_and_run(leg, ticks):
     leg.tick(3)
     assert leg.loop.request_arm(leg.t) is None
-    for _ in range(800):
+    for _ in range(ticks):
         leg.tick()
         leg.follow()
+
+
+def test_arming_sends_no_clear_errors_and_reaches_walk():
+    leg = Leg()
+    arm_and_run(leg, 800)
     assert leg.loop.phase is Phase.WALK and leg.loop.lifecycle == "active"
     assert leg.sent("Clear_Errors") == 0
     assert leg.sent("Set_Controller_Mode", 0) == 1 and leg.sent("Set_Limits", 0) == 1
@@ -338,14 +342,6 @@ def _sdo_sent(leg, node):
     return out
 
 
-def _arm_and_run(leg, ticks):
-    leg.tick(3)
-    assert leg.loop.request_arm(leg.t) is None
-    for _ in range(ticks):
-        leg.tick()
-        leg.follow()
-
-
 def test_arming_writes_the_drivers_watchdog_and_confirms_it_without_waiting():
     leg = Leg()
     leg.loop.drivers_watchdog_timeout_s = 0.25
@@ -371,7 +367,7 @@ def test_arming_writes_the_drivers_watchdog_and_confirms_it_without_waiting():
 def test_a_driver_reading_back_another_watchdog_timeout_is_a_latched_fault(caplog):
     leg = Leg()
     leg.watchdog_reads[0] = 0.2  # the hip's driver answers 0.2 s whatever was written
-    _arm_and_run(leg, 300)
+    arm_and_run(leg, 300)
     sup = leg.loop.supervisor
     assert leg.loop.phase is Phase.FAULT
     assert sup.fault_cause == ("watchdog timeout not confirmed: hip wrote 0.1 s, read 0.2 s "
@@ -387,7 +383,7 @@ def test_a_lost_write_or_read_is_sent_again_and_confirmed_without_a_fault(lost):
     way the controller writes and reads again until the values agree (within 0.5 s)."""
     leg = Leg()
     leg.lose_sdo[1] = lost  # 1: the write; 2: the write and the read; 3: the write, the read, the next write
-    _arm_and_run(leg, 400)
+    arm_and_run(leg, 400)
     assert leg.loop.phase is Phase.RAMP and not leg.loop.supervisor.pending_watchdog  # no fault
     assert len(_sdo_sent(leg, 1)) >= 4 and len(_sdo_sent(leg, 0)) == 2  # the knee's exchange again, the hip's once
 

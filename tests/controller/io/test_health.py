@@ -15,7 +15,7 @@ from controller.io.sensors import SensorLink
 from controller.settings.file import SECTIONS, config_from_dict
 from controller.supervisor import Phase, Supervisor
 from protocol import SENSOR_BOARD_NODE_ID, AxisError, AxisState, BusContract, data_frame
-from tests.controller.test_loop import Leg
+from tests.controller.test_loop import Leg, arm_and_run
 
 C = BusContract.load()
 TEMP, IQ, BUS = C.codec("Get_Temperature"), C.codec("Get_Iq"), C.codec("Get_Bus_Voltage_Current")
@@ -137,11 +137,7 @@ def test_outside_the_active_phases_a_bound_is_not_a_fault_and_silence_of_reading
 # -- through the bus, the loop walking ------------------------------------------------------------
 def _walking() -> Leg:
     leg = Leg()
-    leg.tick(3)
-    assert leg.loop.request_arm(leg.t) is None
-    for _ in range(800):
-        leg.tick()
-        leg.follow()
+    arm_and_run(leg, 800)
     assert leg.loop.phase is Phase.WALK
     return leg
 
