@@ -13,6 +13,7 @@ modules that use them (:mod:`hil.faults.mitm` for the poll period).
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import tempfile
 from dataclasses import dataclass
@@ -37,8 +38,9 @@ class Profile:
             controller [heartbeat periods], or None to keep the configured one. Inside UML a node
             can look silent for a few hundred ms while the plant catches up; the drivers' own
             watchdogs still stop the leg, the controller only waits longer before calling a node lost.
-        safe_state_tolerance_ms: how far past its bound a safe state may come in a HIL fault
-            session and still count as in time [ms] (the plant's pacing stalls by up to this).
+        safe_state_tolerance_ms: the stall [ms] counted for a process on a real-time outcome's
+            path when the session did not measure that process's stall (it did not report):
+            :meth:`late_allowance_s`'s fallback, never used where a measurement exists.
         work_on_shm: write a session's files to /dev/shm and copy them out at the end (inside UML
             a write to the host's file system stalls the whole VM for its duration).
         coarse_time_preload: give the firmware-sim process the coarse-clock preload (PyBullet's
@@ -75,12 +77,39 @@ class Profile:
         return dataclasses.replace(ctl, silence_periods=max(n, ctl.silence_periods),
                                    stale_heartbeat_periods=max(n, ctl.stale_heartbeat_periods))
 
+    def late_allowance_s(self, *stalls_s: float | None) -> float:
+        """How far past its bound a real-time outcome of a session may come and still count as in
+        time [s]: the sum of ``stalls_s``, each the longest stall *measured in that very session*
+        of one process on the outcome's path, plus :data:`SCHEDULING_S`.
+
+        Rule: a safety outcome that exists only in real time (every axis IDLE after a kill, a
+        systemd watchdog ping every half WatchdogSec) is checked against its bound plus this,
+        never against a fixed wall-clock budget: each process the outcome passes through (the
+        plant whose clock runs the drivers' watchdogs, the man-in-the-middle node that forwards
+        the last command, the daemon whose loop pings, the harness that stamps a ping's arrival)
+        delays it by at most its own longest stall, and nothing else of the platform can. The
+        stalls are the platform's floor as measured beside the session (a process's longest
+        period, :class:`hil.bench.floor.FloorProbe` for a process doing no work); timing itself
+        is reported by ``bench --hil``, not asserted. A stall that was not measured (None: the
+        process did not report, NaN, negative) counts as :attr:`safe_state_tolerance_ms`, this
+        platform's fixed fallback, so a missing measurement never widens the bound without limit.
+        """
+        total = SCHEDULING_S
+        for stall in stalls_s:
+            ok = stall is not None and isinstance(stall, (int, float)) and math.isfinite(stall) and stall >= 0
+            total += float(stall) if ok else self.safe_state_tolerance_ms / 1e3
+        return total
+
     def work_folder(self, out: Path, prefix: str) -> Path:
         """Where a session writes while it runs: ``out``, or a fresh folder on /dev/shm (if there)."""
         if self.work_on_shm and os.path.isdir("/dev/shm"):
             return Path(tempfile.mkdtemp(prefix=prefix, dir="/dev/shm"))
         return out
 
+
+SCHEDULING_S = 0.001
+"""One wake-up's latency on top of the measured stalls [s]: a process that becomes due is not run
+the instant it is (:meth:`Profile.late_allowance_s`)."""
 
 NATIVE = Profile(name="native", mitm_poll_s=0.0005, plant_steps_per_wake=1, min_silence_periods=None,
                  safe_state_tolerance_ms=20.0, work_on_shm=False, coarse_time_preload=False)

@@ -18,7 +18,7 @@ convert a float32 endpoint's value to and from it.
 :class:`MessageCodec` packs and unpacks payloads. Where every signal of a message is
 byte-aligned, little-endian and 8/16/32 bits wide, the layout is compiled once into a
 ``struct.Struct`` for the hot path (its cost against cantools: docs/benchmarks.md); otherwise
-cantools does the work. Both paths come from the same DBC signal definitions and are tested
+(and for a float signal with a scale or offset) cantools does the work. Both paths come from the same DBC signal definitions and are tested
 against each other.
 """
 
@@ -149,8 +149,8 @@ class MessageCodec:
             if s.byte_order != "little_endian" or s.start % 8 or s.start < pos:
                 return None
             code = "f" if (s.is_float and s.length == 32) else _STRUCT_CODES.get((s.length, s.is_signed))
-            if code is None or (s.is_float and s.length != 32):
-                return None
+            if code is None or (s.is_float and (s.length != 32 or s.scale != 1 or s.offset != 0)):
+                return None  # (a scaled float is left to cantools: the struct path scales integers only)
             if s.start > pos:
                 fmt += f"{(s.start - pos) // 8}x"
             fmt += code
@@ -214,7 +214,10 @@ class MessageCodec:
             if missing:
                 raise ValueError(f"{self.name}: missing signals {sorted(missing)}")
             return self.pack(*(signals[n] for n in self.signal_names))
-        return bytes(self.message.encode(signals, scaling=True, strict=True))
+        try:
+            return bytes(self.message.encode(signals, scaling=True, strict=True))
+        except cantools.database.errors.EncodeError as exc:  # the same ValueError as the struct path's
+            raise ValueError(f"{self.name}: {exc}") from None
 
     def decode(self, data: bytes | bytearray) -> dict[str, float]:
         return dict(zip(self.signal_names, self.unpack(data)))

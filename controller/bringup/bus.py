@@ -26,6 +26,7 @@ from typing import Callable, Iterable
 
 import can
 
+from controller import errors
 from protocol import AxisState, BusContract, SENSOR_BOARD_NODE_ID, remote_frame, split_arbitration_id
 
 log = logging.getLogger(__name__)
@@ -73,8 +74,9 @@ class BoardHeartbeat:
     uptime_s: float
 
 
-class BusError(RuntimeError):
-    """The bus failed while bring-up was using it (a send or receive raised)."""
+class BusError(errors.BusError, RuntimeError):
+    """The bus failed while bring-up was using it (a send or receive raised). Bring-up reports it
+    as a failed item; one that escaped would be exit 4 (:class:`controller.errors.BusError`)."""
 
 
 class BusWatch:

@@ -7,10 +7,15 @@ configuration), opens the bus, runs :func:`controller.bringup.procedure.run_brin
 the monotonic clock, prints one line per item and a summary, and writes the report as JSON with
 ``--json FILE``.
 
-Exit codes: 0 every item passed (warnings and skipped items allowed), 1 an item failed (or
-Ctrl-C: the axis being moved is sent IDLE first), 2 a usage or configuration error, 3 the bus
-could not be opened. Bring-up is for real hardware: it runs where it is started, never inside
-User-Mode Linux by itself (the ``vcan`` test starts it there with ``firmware-sim``).
+Exit codes (:mod:`controller.errors`): 0 every item passed (warnings and skipped items allowed);
+1 an item failed (the bus failing during bring-up is a failed item); 2 a malformed option
+(argparse); 3 the configuration is missing, unreadable or invalid (each problem on its own line,
+then one line), or the report cannot be written; 4 the bus cannot be opened (one line naming the
+interface, the channel and the system's reason: :func:`controller.daemon.openbus.open_bus`);
+130 Ctrl-C (the axis being moved is sent IDLE first; no report is written). ``--json FILE`` is
+checked before the bus is opened (a folder, or under a file: exit 3 at once). Bring-up is for
+real hardware: it runs where it is started, never inside User-Mode Linux by itself (the ``vcan``
+test starts it there with ``firmware-sim``).
 """
 
 from __future__ import annotations
@@ -22,18 +27,34 @@ from typing import Any
 
 log = logging.getLogger(__name__)
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_BUS = 0, 1, 2, 3
+EXIT_OK, EXIT_FAILED = 0, 1  # controller.errors' codes
 
 
 def open_bus(bus_kw: dict[str, Any]):
-    """(python-can bus, the lean front the procedure uses, channel name), or raises what python-can raised."""
-    import can
-
+    """(python-can bus, the lean front the procedure uses, channel name); raises
+    :class:`controller.errors.BusError` (one line, exit 4) when the bus cannot be opened."""
     from controller.daemon.fastbus import lean
+    from controller.daemon.openbus import open_bus as open_can
 
-    raw = can.Bus(**bus_kw)
+    raw = open_can(bus_kw)
     channel = str(bus_kw.get("channel") or getattr(raw, "channel_info", None) or getattr(raw, "channel", "the bus"))
     return raw, lean(raw, timestamps=False), channel
+
+
+def check_report_path(path: str) -> None:
+    """Refuse (:class:`controller.errors.InputError`, exit 3) a ``--json`` path that cannot be
+    written, before anything runs: an existing folder, or a path under a file. Its folder is made."""
+    from pathlib import Path
+
+    from controller.errors import InputError
+
+    out = Path(path)
+    if out.is_dir():
+        raise InputError(f"--json {path}: is a folder; give a file name, e.g. {out / 'report.json'}")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"--json {path}: its folder cannot be made ({exc.strerror or exc})") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,24 +67,17 @@ def run(args: argparse.Namespace) -> int:
     try:
         settings = daemon_settings(args.config, args.interface, args.channel, args.bitrate)
     except ConfigError as exc:
-        for line in exc.lines():
-            print(line, file=sys.stderr)
-        print(f"bringup: configuration error in {exc.source}", file=sys.stderr)
-        return EXIT_USAGE
+        raise exc.reported() from None  # exit 3: every problem on its own line, then one line
     config = settings.controller
-    try:
-        raw, bus, channel = open_bus(settings.bus_kw)
-    except Exception as exc:  # noqa: BLE001 - python-can raises many kinds; all mean "no bus"
-        where = settings.bus_kw.get("channel") or "python-can's configured channel"
-        print(f"bringup: cannot open the bus {where!s}: {exc}. Is the interface there and up "
-              f"(ip -details link show {where}; ip link set {where} up type can bitrate 1000000)?", file=sys.stderr)
-        return EXIT_NO_BUS
+    if args.json not in (None, "-"):
+        check_report_path(args.json)
+    raw, bus, channel = open_bus(settings.bus_kw)  # BusError: exit 4
     try:
         report = run_bringup(bus, config.axes, sensor_node_id=config.sensor_node_id, channel=channel,
                              move=not args.no_move, clear_errors=args.clear_errors)
     except KeyboardInterrupt:
-        print("bringup: interrupted (the axis being moved was sent IDLE)", file=sys.stderr)
-        return EXIT_FAILED
+        log.warning("bring-up interrupted: the axis being moved was sent IDLE; no report written")
+        raise  # controller.cli.common.main: one line, exit 130
     finally:
         raw.shutdown()
     out = sys.stderr if args.json == "-" else sys.stdout

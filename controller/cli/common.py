@@ -8,11 +8,24 @@ so building the parser imports no simulation, plotting or cluster library. A ver
 extras it needs (:data:`EXTRAS`); where one is not installed, :func:`main` says which to install,
 in one line, before importing anything of it.
 
-Exit codes shared by every verb: 0 done, 1 the job ran and failed (a check failed, a fault), 2 bad
-input (an option, a configuration, a file) or a missing extra, each with one line on stderr.
+Exit codes shared by every verb are :mod:`controller.errors`' table: 0 done, 1 the job ran and
+failed, 2 usage, 3 input (a file, folder or configuration), 4 bus, 5 safety stop, 6 a missing
+extra, 70 a bug (the only case with a traceback, and a line saying so), 130 interrupted. A verb
+raises one of :mod:`controller.errors`' classes for an expected failure; :func:`main` prints it as
+one line, ``PROG VERB: error: MESSAGE``, and returns its code.
 The bus arguments (:func:`add_bus_args`) and their precedence (command line over the
 configuration file over python-can's own configuration: :func:`controller.settings.daemon.bus_kwargs`)
-are defined once, here and there, for every verb that opens a bus.
+are defined once, here and there, for every verb that opens a bus; every verb opens it with
+:func:`controller.daemon.openbus.open_bus`, which turns python-can's failures (an unknown
+interface, a channel that does not exist, a kernel without SocketCAN) into one
+:class:`controller.errors.BusError` line (exit 4).
+
+Options are checked before any work starts: numbers by the argparse types here (:func:`positive`,
+:func:`non_negative`, :func:`bounded`: argparse names the option, exit 2), output paths by
+:func:`check_output_file` and :func:`check_output_folder` (an empty path, a path under a file, a
+folder where a file is wanted or the other way round, a folder that cannot be written: one
+:class:`controller.errors.InputError` line naming the option, exit 3), so that a run is never lost
+at its end to a mistake in its command line.
 """
 
 from __future__ import annotations
@@ -23,6 +36,7 @@ import importlib.util
 import json
 import logging
 import math
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,6 +97,84 @@ def positive(kind: Callable[[str], Any]) -> Callable[[str], Any]:
     return parse
 
 
+def non_negative(kind: Callable[[str], Any] = int) -> Callable[[str], Any]:
+    """An argparse type: a finite number at or above zero (argparse names the option in its error)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a non-negative number, got {text!r}") from None
+        if not (math.isfinite(value) and value >= 0):
+            raise argparse.ArgumentTypeError(f"must be a non-negative number, got {text!r}")
+        return value
+
+    return parse
+
+
+def bounded(kind: Callable[[str], Any], low: float, high: float) -> Callable[[str], Any]:
+    """An argparse type: a finite number in ``[low, high]`` (argparse names the option in its error)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number in [{low:g}, {high:g}], got {text!r}") from None
+        if not (math.isfinite(value) and low <= value <= high):
+            raise argparse.ArgumentTypeError(f"must be a number in [{low:g}, {high:g}], got {text!r}")
+        return value
+
+    return parse
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` itself or its nearest ancestor that exists (``.`` at worst, for a relative path)."""
+    for candidate in (path, *path.parents):
+        if candidate.exists():
+            return candidate
+    return Path(".")
+
+
+def _check_output(path: str | None, option: str, want_folder: bool) -> None:
+    from controller.errors import InputError
+
+    if path is None:
+        return
+    what = "folder" if want_folder else "file"
+    if not str(path).strip():
+        raise InputError(f"{option}: an empty path; give the {what} to write")
+    p = Path(path)
+    found = _nearest_existing(p)
+    if found != p:  # some of the path is still to be made: the nearest existing part must be a folder
+        if not found.is_dir():
+            raise InputError(f"{option} {path}: {found} is a file, not a folder, so nothing can be written under it")
+        if not os.access(found, os.W_OK | os.X_OK):
+            raise InputError(f"{option} {path}: the folder {found} is not writable")
+        return
+    if want_folder and not p.is_dir():
+        raise InputError(f"{option} {path}: a file, not a folder")
+    if not want_folder and p.is_dir():
+        raise InputError(f"{option} {path}: a folder, not a file")
+    writable = p if want_folder else (p.parent if str(p.parent) else Path("."))
+    if not os.access(writable, os.W_OK | os.X_OK) or (not want_folder and not os.access(p, os.W_OK)):
+        raise InputError(f"{option} {path}: not writable")
+
+
+def check_output_file(path: str | None, option: str) -> None:
+    """Refuse, in one :class:`controller.errors.InputError` line naming ``option``, a file to write
+    that cannot be: an empty path, a path under a file, an existing folder, a place not writable.
+    None and ``-`` (stdout) pass. Call it before any work, so a run is not lost at its end."""
+    if path != "-":
+        _check_output(path, option, want_folder=False)
+
+
+def check_output_folder(path: str | None, option: str) -> None:
+    """Refuse, in one :class:`controller.errors.InputError` line naming ``option``, a folder to
+    write into that cannot be: an empty path (it would be the current folder), a path under a
+    file, an existing file, a place not writable. None passes."""
+    _check_output(path, option, want_folder=True)
+
+
 def add_bus_args(p: argparse.ArgumentParser) -> None:
     """``--interface``, ``--channel``, ``--bitrate``: each given one overrides the configuration
     file's ``[bus]``; without a file, what is not given comes from python-can's own configuration."""
@@ -93,17 +185,31 @@ def add_bus_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bitrate", type=int, default=None, help="bit rate [bit/s] (ignored by vcan)")
 
 
-def write_json(path: str | None, data: Any) -> None:
-    """``data`` as indented JSON to ``path`` (atomically, creating its folder), or stdout for None or ``-``."""
+def write_json(path: str | None, data: Any, option: str = "--json") -> None:
+    """``data`` as indented JSON to ``path`` (atomically, creating its folder), or stdout for None or
+    ``-``. A path that cannot be written is an :class:`controller.errors.InputError` naming
+    ``option`` (the verb should have checked it before its work with :func:`check_output_file`)."""
     from controller.atomic import write_json_atomic
+    from controller.errors import InputError
 
     if path in (None, "-"):
         print(json.dumps(data, indent=2))
         return
+    check_output_file(path, option)
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out, data)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(out, data)
+    except OSError as exc:
+        raise InputError(f"{option} {path}: cannot write it: {exc.strerror or _one_line(exc)}") from None
     logging.getLogger("elegant_stepping").info("wrote %s", out)
+
+
+def warn(args: argparse.Namespace, text: str) -> None:
+    """One warning line on stderr, ``PROG VERB: warning: TEXT`` (a partial read, a fallback)."""
+    verb = getattr(args, "_verb", None)
+    prog = getattr(args, "_prog", "elegant-stepping")
+    print(f"{prog}{'' if verb is None else ' ' + verb.name}: warning: {' '.join(text.split())}", file=sys.stderr)
 
 
 def build_parser(prog: str, description: str, verbs: Sequence[Verb]) -> argparse.ArgumentParser:
@@ -119,21 +225,79 @@ def build_parser(prog: str, description: str, verbs: Sequence[Verb]) -> argparse
     return parser
 
 
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _file_error(exc: OSError) -> str:
+    """An OSError about a path as one line naming the path and the reason."""
+    where = exc.filename if exc.filename is not None else ""
+    why = exc.strerror or _one_line(exc)
+    return f"{where}: {why}" if where else why
+
+
 def main(prog: str, description: str, verbs: Sequence[Verb], argv: Sequence[str] | None = None) -> int:
-    """Parse ``argv``, set up logging, check the verb's extras, run it; its exit code."""
-    parser = build_parser(prog, description, verbs)
-    args = parser.parse_args(argv)
-    verb: Verb = args._verb
-    level = logging.WARNING - 10 * min(args.verbose, 2)
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    missing = missing_modules(verb.needs)
-    if missing:
-        mods = ", ".join(m for absent in missing.values() for m in absent)
-        print(f"{prog} {verb.name}: needs {mods}, not installed here: pip install "
-              f"'elegant-stepping[{','.join(missing)}]' (or '.[{','.join(missing)}]' in a clone)", file=sys.stderr)
-        return 2
+    """Parse ``argv``, set up logging, check the verb's extras, run it; its exit code
+    (:mod:`controller.errors`). An expected failure is one line on stderr; a bug is a traceback
+    and a line saying so.
+
+    The mapping: a :class:`controller.errors.CliError` -> its own code; ``ValueError`` (a library's
+    validation) -> 3; an ``OSError`` about a path (it names the file: missing, a folder, not
+    writable, a full disk) -> 3; ``KeyboardInterrupt`` (SIGINT, at start-up too: the parser is
+    built and the verb's modules imported inside) -> 130; ``BrokenPipeError`` (stdout piped into a
+    reader that stopped) -> 0, quietly; a missing extra -> 6; argparse's own errors -> 2 (it exits
+    itself); anything else, an ``OSError`` about no path included -> 70 with the traceback."""
+    from controller.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_MISSING, EXIT_OK, CliError
+
+    name = prog
     try:
+        parser = build_parser(prog, description, verbs)
+        args = parser.parse_args(argv)
+        verb: Verb = args._verb
+        args._prog = prog
+        name = f"{prog} {verb.name}"
+        level = logging.WARNING - 10 * min(args.verbose, 2)
+        logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        missing = missing_modules(verb.needs)
+        if missing:
+            mods = ", ".join(m for absent in missing.values() for m in absent)
+            print(f"{name}: needs {mods}, not installed here: pip install "
+                  f"'elegant-stepping[{','.join(missing)}]' (or '.[{','.join(missing)}]' in a clone)", file=sys.stderr)
+            return EXIT_MISSING
         return importlib.import_module(verb.module).run(args)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"{prog} {verb.name}: error: {exc}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted; what was finished is kept", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except CliError as exc:
+        print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
+        return exc.exit_code
+    except ValueError as exc:  # a library's validation (a configuration, a value out of range)
+        print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_INPUT
+    except (FileNotFoundError, NotADirectoryError, IsADirectoryError, FileExistsError, PermissionError) as exc:
+        print(f"{name}: error: {_file_error(exc)}", file=sys.stderr)
+        return EXIT_INPUT
+    except BrokenPipeError:  # stdout piped into a reader that stopped (``| head``): not an error
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+        return EXIT_OK
+    except OSError as exc:
+        if exc.filename is None:  # not about a path: a bug, or a verb that should have said more
+            return _bug(name)
+        print(f"{name}: error: {_file_error(exc)}", file=sys.stderr)  # a full disk, a read-only folder, ...
+        return EXIT_INPUT
+    except Exception:  # noqa: BLE001 - a bug: say so, with the traceback to report
+        return _bug(name)
+
+
+def _bug(name: str) -> int:
+    """The one path with a traceback: the exception being handled, and a line saying it is a bug."""
+    import traceback
+
+    from controller.errors import EXIT_BUG
+
+    traceback.print_exc()
+    print(f"{name}: this is a bug in elegant-stepping (the traceback above); please report it", file=sys.stderr)
+    return EXIT_BUG

@@ -4,8 +4,11 @@ One request on the daemon's control socket (:mod:`controller.daemon.control`; th
 :mod:`controller.daemon.command`). ``--socket PATH``, or ``--config FILE`` (its ``[service]
 control_socket``), default ``/run/elegant-stepping/control.sock``; ``--json`` prints the reply.
 
-Exit codes: 0 accepted, 1 refused by the daemon (the reason on stderr), 2 no daemon there (or
-no permission: the socket's group is named) or bad input.
+Exit codes (:mod:`controller.errors`; each failure one line, ``elegant-stepping-leg VERB: error:
+...``): 0 accepted; 1 refused by the daemon (the reason on stderr); 2 a malformed option; 3 an
+input to fix: ``--config`` unreadable or invalid, or permission denied on the socket (its group
+is named: join it); 4 no daemon answers (no socket file, nothing listening, no reply within
+``--timeout-s``: is the service running?).
 """
 
 from __future__ import annotations

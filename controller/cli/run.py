@@ -15,11 +15,33 @@ Signals: SIGTERM, SIGINT, SIGHUP and SIGUSR1 all stop it the same way (axes IDLE
 saved if they changed, the final record, exit 0); SIGHUP does not reload the configuration (a
 change needs a restart, on purpose); a second signal during the stop changes nothing.
 
-Exit codes: 0 stopped as asked (a stop signal, ``--seconds``) with the axes IDLE and the weights
-saved; 1 a latched fault at the end of ``--seconds``, or weights that could not be saved; 2 a bad
-option or configuration, or a refusal to start (one line: the weights' folder not writable, the
-control socket already served or not creatable, an incompatible weights file that could not be set
-aside).
+Exit codes (:mod:`controller.errors`; every failure is one line, ``elegant-stepping-leg run: error:
+...``, never a traceback unless it is a bug):
+
+==== =============================================================================================
+0    stopped as asked (a stop signal, ``--seconds``) with the axes IDLE and the weights saved; also
+     after a latched fault, when a stop signal ended the run (the stop was done in order)
+1    the learned weights could not be saved at the end (logged; the final record says so)
+2    a malformed option (argparse)
+3    an input to fix, nothing started: the configuration is missing, unreadable or invalid (every
+     problem on its own line, then one line counting them); the weights' folder is not writable;
+     an incompatible weights file could not be set aside; the control socket cannot be made
+     (already served by another daemon, not a socket, an unknown group, a folder that cannot be
+     created); the records or ticks file cannot be written
+4    the bus cannot be opened: one line naming the interface, the channel and the system's reason
+     (``--channel can9``: no such device; a kernel without SocketCAN: address family not
+     supported; ``--interface nosuch``: not one of python-can's), with what to check
+5    safety stop: ``--seconds`` ended with the leg stopped by itself (a latched FAULT: an axis
+     error, a silent node, an estop). The daemon never exits *because* of a fault (a faulted leg
+     holds its axes IDLE and waits for a person, and systemd must not restart it), so 5 comes only
+     from a run with ``--seconds`` (tests, the harness)
+130  interrupted before the loop began (Ctrl-C during start-up); once running, SIGINT is a stop
+     signal like SIGTERM (exit 0)
+==== =============================================================================================
+
+The systemd unit (``deploy/elegant-stepping-controller.service``) does not restart after 2, 3 or 6
+(``RestartPreventExitStatus``): a restart would not fix them; after 4 it retries (an adapter that
+comes up late).
 """
 
 from __future__ import annotations
@@ -29,6 +51,8 @@ import json
 import sys
 
 from controller.cli.common import add_bus_args, positive
+
+EXIT_OK, EXIT_FAILED, EXIT_SAFETY = 0, 1, 5  # controller.errors' codes (imported there inside run)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,8 +85,12 @@ def run(args: argparse.Namespace) -> int:
     from controller.daemon.control import DEFAULT_SOCKET
     from controller.daemon.run import run_controller
     from controller.settings.daemon import daemon_settings
+    from controller.settings.file import ConfigError
 
-    d = daemon_settings(args.config, args.interface, args.channel, args.bitrate, args.weights, args.save_every_s)
+    try:
+        d = daemon_settings(args.config, args.interface, args.channel, args.bitrate, args.weights, args.save_every_s)
+    except ConfigError as exc:
+        raise exc.reported() from None  # exit 3: every problem on its own line, then one line
     service = getattr(d.config, "service", None)
     if args.socket is not None:
         socket_path = None if args.socket.strip().lower() in ("", "none") else args.socket
@@ -80,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     final.pop("weights", None)
     print(json.dumps(final), file=sys.stderr)
     if final["weights_saved"] is False:
-        return 1  # the learned weights could not be saved (logged)
+        return EXIT_FAILED  # the learned weights could not be saved (logged)
     if final["stopped_by"] in STOPPED_AS_ASKED:
-        return 0  # a stop asked for, done in order: axes IDLE, weights saved (a fault is in the final record)
-    return 0 if final["phase"] != "fault" else 1
+        return EXIT_OK  # a stop asked for, done in order: axes IDLE, weights saved (a fault is in the final record)
+    return EXIT_OK if final["phase"] != "fault" else EXIT_SAFETY  # --seconds ended with the leg stopped by itself

@@ -1,11 +1,13 @@
 """The leg verbs that command a running daemon (``status``, ``arm``, ``disarm``, ``clear-faults``,
 ``estop``): what they share, behind their one-line modules in :mod:`controller.cli`.
 
-Each sends one request on the control socket (:func:`controller.daemon.control.request`) and
-exits 0 when the daemon accepted it, 1 when it refused (the reason on stderr), 2 when there is no
-daemon to ask or the input is bad (an unreadable ``--config``, a reply that makes no sense). The
-socket is ``--socket PATH``, else ``--config FILE``'s ``[service] control_socket``, else
-``/run/elegant-stepping/control.sock``.
+Each sends one request on the control socket (:func:`controller.daemon.control.request`). Exit
+codes (:mod:`controller.errors`): 0 the daemon accepted it; 1 the daemon refused it (the reason on
+stderr); 2 a malformed option; 3 an input to fix: a ``--config`` that cannot be read or is invalid,
+or a socket this user may not connect to (not in its group); 4 no daemon answers: no socket file,
+nothing listening on it, no reply within ``--timeout-s``, a reply that is not the protocol's. Each
+failure is one line, ``elegant-stepping-leg VERB: error: ...``. The socket is ``--socket PATH``,
+else ``--config FILE``'s ``[service] control_socket``, else ``/run/elegant-stepping/control.sock``.
 
 May import: the standard library and ``controller`` (the leg's install).
 """
@@ -18,7 +20,7 @@ import math
 import sys
 from typing import Any
 
-from controller.daemon.control import DEFAULT_SOCKET, ControlError, request
+from controller.daemon.control import DEFAULT_SOCKET, request
 
 
 def add_control_arguments(p: argparse.ArgumentParser, json_help: str = "print the daemon's reply as JSON") -> None:
@@ -27,7 +29,9 @@ def add_control_arguments(p: argparse.ArgumentParser, json_help: str = "print th
     p.add_argument("--socket", default=None, metavar="PATH",
                    help=f"the daemon's control socket (default: --config's [service] control_socket, else {DEFAULT_SOCKET})")
     p.add_argument("--config", default=None, metavar="FILE", help="the configuration the daemon runs with (TOML)")
-    p.add_argument("--timeout-s", type=float, default=5.0, help="wait this long for the daemon's reply [s]")
+    from controller.cli.common import positive
+
+    p.add_argument("--timeout-s", type=positive(float), default=5.0, help="wait this long for the daemon's reply [s]")
     p.add_argument("--json", action="store_true", help=json_help)
 
 
@@ -37,7 +41,12 @@ def socket_path(args: argparse.Namespace) -> str:
     if getattr(args, "config", None):
         from controller.settings.file import load_config
 
-        return load_config(args.config).service.control_socket  # ConfigError (a ValueError): exit 2
+        from controller.settings.file import ConfigError
+
+        try:
+            return load_config(args.config).service.control_socket
+        except ConfigError as exc:
+            raise exc.reported() from None  # every problem on its own line, then one: exit 3
     return DEFAULT_SOCKET
 
 
@@ -94,14 +103,13 @@ def format_status(st: dict[str, Any]) -> str:
 
 
 def leg_verb(verb: str, args: argparse.Namespace) -> int:
-    """Send ``verb``; print the outcome; the exit code (0 accepted, 1 refused, 2 no daemon/bad input)."""
+    """Send ``verb``; print the outcome; the exit code: 0 accepted, 1 refused. No reply raises
+    :class:`~controller.daemon.control.ControlError` (exit 4, or 3 for a permission), a bad
+    ``--config`` :class:`~controller.settings.file.ConfigError` (exit 3): one line each, printed by
+    :func:`controller.cli.common.main`."""
     prog = f"elegant-stepping-leg {verb}"
     path = socket_path(args)
-    try:
-        reply = request(path, verb, timeout_s=getattr(args, "timeout_s", 5.0))
-    except ControlError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return 2
+    reply = request(path, verb, timeout_s=getattr(args, "timeout_s", 5.0))  # ControlError: one line, exit 4 or 3
     if getattr(args, "json", False):
         print(json.dumps(reply, indent=2))
     elif verb == "status" and reply.get("status"):

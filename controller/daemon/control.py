@@ -32,10 +32,17 @@ nothing answers on it; a path where another daemon listens, or that is not a soc
 start. At exit the file is removed if it is still ours (same inode).
 
 :func:`request` is the client: one request, its reply as a dict, or :class:`ControlError` with a
-one-line message (no daemon, permission denied naming the socket's group, a timeout, a reply that is
-not JSON).
+one-line message. Its exit code (:mod:`controller.errors`), for the leg verbs: **4** when no daemon
+answers (no socket file, nothing listening on it, no reply within the timeout, the connection
+closed, a reply that is not the protocol's): the control socket is the verbs' link to the leg, as
+the CAN bus is the daemon's, and "a node on it does not answer" is exit 4; **3** when the socket is
+there but this user may not connect (:class:`ControlPermissionError`, naming the socket's group):
+like any file the user may not open, an input to fix (``usermod -aG``), not an absent daemon.
+A socket that cannot be created at start is :class:`ControlSocketError` (exit 3, the daemon does not
+start).
 
-May import: the standard library only (the leg verbs import it inside ``run``).
+May import: the standard library and :mod:`controller.errors` (standard library only) (the leg
+verbs import it inside ``run``).
 """
 
 from __future__ import annotations
@@ -52,6 +59,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from controller.errors import EXIT_INPUT, BusError, InputError
+
 log = logging.getLogger(__name__)
 
 DEFAULT_SOCKET = "/run/elegant-stepping/control.sock"
@@ -63,12 +72,18 @@ READ_TIMEOUT_S = 2.0  # a client that connects and never sends its line
 MAX_CLIENTS = 8
 
 
-class ControlError(Exception):
-    """A control request that got no reply from a daemon: the one-line message says why."""
+class ControlError(BusError):
+    """A control request that got no reply from a daemon: the one-line message says why (exit 4)."""
 
 
-class ControlSocketError(ValueError):
-    """The control socket cannot be created (the daemon refuses to start: exit 2, one line)."""
+class ControlPermissionError(ControlError):
+    """The control socket is there, but this user may not connect to it (exit 3: join its group)."""
+
+    exit_code = EXIT_INPUT
+
+
+class ControlSocketError(InputError):
+    """The control socket cannot be created (the daemon refuses to start: exit 3, one line)."""
 
 
 def reply(verb: str | None, refused: str | None, status: dict[str, Any] | None) -> dict[str, Any]:
@@ -105,12 +120,16 @@ class Pending:
 class ControlServer:
     """The daemon's side. ``start()`` creates the socket and the accepting thread;
     ``run_pending(execute)`` on the loop's thread runs the queued requests, ``execute(verb) ->
-    (refused, status)``; ``close()`` stops accepting and removes the socket file."""
+    (refused, status)``; ``close()`` stops accepting and removes the socket file. ``wait(event,
+    timeout_s)``: how a connection's thread waits for the loop to run its request (default
+    ``threading.Event.wait``; a test gives its own to decide when the reply timeout has passed)."""
 
-    def __init__(self, path: str | os.PathLike, group: str = "", reply_timeout_s: float = REPLY_TIMEOUT_S) -> None:
+    def __init__(self, path: str | os.PathLike, group: str = "", reply_timeout_s: float = REPLY_TIMEOUT_S,
+                 wait: Callable[[threading.Event, float], bool] = threading.Event.wait) -> None:
         self.path = Path(path)
         self.group = group
         self.reply_timeout_s = reply_timeout_s
+        self.wait = wait  # wait(event, timeout_s) -> set?: how a connection waits for the loop (a test's clock)
         self.requests = 0  # answered, valid or not
         self.executed = 0
         self.busy = 0
@@ -322,14 +341,14 @@ class ControlServer:
                 return
             p = Pending(verb)
             self._queue.put(p)
-            if not p.done.wait(self.reply_timeout_s):
+            if not self.wait(p.done, self.reply_timeout_s):
                 with p.lock:
                     if p.state == "queued":
                         p.state = "withdrawn"  # never runs
                         p.result = reply(verb, "daemon busy", None)
                         self.busy += 1
                 if p.state == "taken":  # running on the loop's thread right now: it ends within a tick
-                    p.done.wait(self.reply_timeout_s)
+                    self.wait(p.done, self.reply_timeout_s)
             with p.lock:
                 result = p.result if p.result is not None else reply(verb, "daemon busy", None)
             self._answer(conn, result)
@@ -372,7 +391,7 @@ def request(path: str | os.PathLike, verb: str, timeout_s: float = 5.0) -> dict[
             raise ControlError(f"no daemon at {path} (is it running? systemctl status {SERVICE})") from None
         except PermissionError:
             group = _group_of(path)
-            raise ControlError(f"permission denied on {path}: commanding the leg needs the group {group} "
+            raise ControlPermissionError(f"permission denied on {path}: commanding the leg needs the group {group} "
                                f"(sudo usermod -aG {group} $USER, then log in again)") from None
         except socket.timeout:
             raise ControlError(f"no answer from {path} within {timeout_s:g} s (systemctl status {SERVICE})") from None
@@ -403,5 +422,6 @@ def request(path: str | os.PathLike, verb: str, timeout_s: float = 5.0) -> dict[
     return out
 
 
-__all__ = ["ControlError", "ControlServer", "ControlSocketError", "DEFAULT_SOCKET", "VERBS", "parse_request",
+__all__ = ["ControlError", "ControlPermissionError", "ControlServer", "ControlSocketError", "DEFAULT_SOCKET", "VERBS",
+           "parse_request",
            "reply", "request"]

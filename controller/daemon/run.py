@@ -2,15 +2,21 @@
 
 :class:`controller.loop.ControlLoop` ticks on the monotonic clock, paced by
 :class:`controller.daemon.pacing.Pacer` (missed periods are skipped, never bunched). Everything it knows
-comes from the bus. With ``records``, it writes its own records as JSON lines: ``clock``, ``phase``
+comes from the bus. With ``records``, it writes its own records as JSON lines: first a ``format`` line (the stamp of
+:mod:`controller.errors`: ``{"kind": "format", "format": "controller-records", "format_version": 1,
+"project_version": ...}``), then ``clock``, ``phase``
 (every phase change), ``command`` (every command from the control socket, accepted or refused),
 ``step`` (each step cycle once complete: gated range, cell, burst change asked for, burst length,
 swing), ``reflex`` (each reflex, with the weights' L1 norm after it), ``weights`` (a file set aside)
 and a ``final`` line at exit (loop counters, pacing, frames, weights). Times are the monotonic
 clock of this machine (or VM), the clock the firmware-sim process stamps its ground truth with.
 With ``records_max_bytes`` the records and the ticks file rotate (:mod:`controller.daemon.rotate`:
-``FILE`` the newest, ``FILE.1`` ... ``FILE.<records_keep>`` older ones; a restarted daemon rotates
-the previous run's file instead of overwriting it).
+``FILE`` the newest, ``FILE.1`` ... ``FILE.<records_keep>`` older ones, each beginning with the format
+line and the clock; a restarted daemon rotates the previous run's file instead of overwriting it).
+:func:`read_records` reads one such file back: it checks the format line (a file without one, from
+before the stamp, is version 0 and read the same way), refuses an unknown version
+(:class:`~controller.errors.InputError`) and a damaged line (by its line number), and drops a torn
+last line (a kill while writing) with a warning.
 
 The lifecycle: the daemon opens its bus and its control socket and waits for its nodes
 (WAIT_NODES); once every node is heard it is **inactive** (INACTIVE, axes IDLE) and tells systemd
@@ -23,7 +29,7 @@ this loop's thread, at the start of a tick, before :meth:`ControlLoop.tick`.
 
 With ``weights``, learning resumes across restarts, and weights are never destroyed:
 
-- at start the weights' folder must be writable (else the daemon refuses to start: exit 2);
+- at start the weights' folder must be writable (else the daemon refuses to start: exit 3);
 - :func:`controller.stepping.weights.resume_weights` loads the first good generation (the file,
   ``.prev``, ``.prev2``, ...: ``weights_generations`` in all); a file that is intact but does not fit
   this configuration (another shape or cell width) is renamed aside to
@@ -47,6 +53,20 @@ second signal while the stop runs changes nothing (it is counted in ``final["sig
 succeeded and whether the last one did (``weights_saved``: True, False, or None when there was
 nothing to write).
 
+Failures at start, each one line and nothing left running (:mod:`controller.errors`): a bus that
+cannot be opened is a :class:`~controller.errors.BusError` (exit 4: :func:`controller.daemon.openbus.open_bus`,
+naming the interface, the channel and the system's reason); a weights folder that is not writable,
+a weights file that cannot be set aside, a control socket that cannot be made
+(:class:`~controller.daemon.control.ControlSocketError`), a records or ticks file that cannot be
+written are a :class:`StartError`, an :class:`~controller.errors.InputError` (exit 3). The daemon
+never exits by itself because the leg stopped (a latched FAULT keeps the loop running and the axes
+IDLE, waiting for a person); only ``duration_s`` can end a run in FAULT, which the command line
+reports as a safety stop (exit 5, :mod:`controller.cli.run`).
+
+The tick clock and the sleep between ticks are ``clock`` and ``sleep`` (default the monotonic clock
+and ``time.sleep``): a test runs the daemon in lockstep with a simulated leg by stepping the leg
+inside ``sleep``, so what it asserts about time is simulated time.
+
 Under systemd (``Type=notify``, ``$NOTIFY_SOCKET`` set) it tells the service manager READY once
 inactive and healthy, its STATUS (lifecycle and phase) on each phase change, WATCHDOG pings from
 this loop (every half of ``$WATCHDOG_USEC``, FAULT included) and STOPPING when the shutdown begins
@@ -68,6 +88,8 @@ from array import array
 from pathlib import Path
 from typing import Any
 
+from typing import Callable
+
 import can
 import numpy as np
 
@@ -76,8 +98,10 @@ from controller.daemon.autosave import AutosaveConfig, WeightAutosave
 from controller.daemon.control import ControlServer
 from controller.daemon.fastbus import lean
 from controller.daemon.notify import DaemonNotify
+from controller.daemon.openbus import open_bus
 from controller.daemon.pacing import Pacer
 from controller.daemon.rotate import RotatingFile
+from controller.errors import InputError, check_stamp, stamp
 from controller.loop import ControlLoop, StepRecord
 from controller.stepping.learner import AdaptivePremotor
 from controller.stepping.weights import resume_weights
@@ -90,8 +114,16 @@ STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGUSR1)
 """Every one of them stops the daemon the same way (SIGHUP included: no reload)."""
 
 
-class StartError(ValueError):
-    """The daemon refuses to start (one line; the leg verb exits 2)."""
+RECORDS_FORMAT = "controller-records"
+"""The ``format`` of the records file's first line (:func:`controller.errors.stamp`)."""
+RECORDS_VERSION = 1
+"""The records' format version this daemon writes: 1 since the format line; 0 is a file without it."""
+RECORDS_VERSIONS = (0, 1)
+"""The records' format versions :func:`read_records` reads (0: written before the format line)."""
+
+
+class StartError(InputError):
+    """The daemon refuses to start (one line; exit 3: an input the person must fix, no traceback)."""
 
 
 def _version() -> str:
@@ -115,17 +147,28 @@ def step_dict(s: StepRecord) -> dict[str, Any]:
     }
 
 
+def records_format_line() -> dict[str, Any]:
+    """The first line of every records file: ``{"kind": "format", "format": "controller-records",
+    "format_version": 1, "project_version": ...}``."""
+    return {"kind": "format", **stamp(RECORDS_FORMAT, RECORDS_VERSION)}
+
+
 class Records:
     """The records file (JSON lines), rotated within ``max_bytes`` (None: one file, overwritten at
-    start). Each new file begins with the clock line and the current phase."""
+    start). Each new file begins with the format line, the clock line and the current phase.
+    ``monotonic``: the clock the records' times are on (the daemon's tick clock)."""
 
-    def __init__(self, path: str | Path | None, max_bytes: int | None = None, keep: int = 3) -> None:
-        self.clock: dict[str, Any] = {"kind": "clock", "realtime_minus_monotonic_s": time.time() - time.monotonic()}
+    def __init__(self, path: str | Path | None, max_bytes: int | None = None, keep: int = 3,
+                 monotonic: Callable[[], float] = time.monotonic) -> None:
+        self.format = records_format_line()
+        self.clock: dict[str, Any] = {"kind": "clock", "realtime_minus_monotonic_s": time.time() - monotonic()}
         self.last_phase: dict[str, Any] | None = None
         self.out = None if not path else RotatingFile(path, max_bytes, keep, header=self._header,
                                                       rotate_at_start=True)
         self.steps_written = 0
         self.reflexes_written = 0
+        if self.out is not None:
+            self.out.write(json.dumps(self.format) + "\n")
         self.write(self.clock)
 
     @property
@@ -133,7 +176,7 @@ class Records:
         return None if self.out is None else self.out.f
 
     def _header(self) -> list[str]:
-        return [json.dumps(x) + "\n" for x in (self.clock, self.last_phase) if x is not None]
+        return [json.dumps(x) + "\n" for x in (self.format, self.clock, self.last_phase) if x is not None]
 
     def write(self, obj: dict[str, Any]) -> None:
         if obj.get("kind") == "phase":
@@ -184,7 +227,8 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                    control_socket: str | Path | None = None, control_group: str = "",
                    records_max_bytes: int | None = None, records_keep: int = 3,
                    weights_generations: int = 3, stop_event: threading.Event | None = None,
-                   restore_signals: bool = True) -> dict[str, Any]:
+                   restore_signals: bool = True, clock: Callable[[], float] | None = None,
+                   sleep: Callable[[float], None] | None = None) -> dict[str, Any]:
     """Run until a stop signal (SIGTERM, SIGINT, SIGHUP, SIGUSR1), ``duration_s`` or ``stop_event``.
 
     ``ticks``: write, for every tick, its clock and the number of frames it read from the bus
@@ -197,9 +241,15 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
     ``records_max_bytes``/``records_keep``: rotation of ``records`` and ``ticks`` (None: none).
     Signal handlers are installed only on the main thread (elsewhere stop with ``stop_event`` or
     ``duration_s``); ``restore_signals=False`` leaves them in place after the return, so a late
-    signal still changes nothing (the command line's ``run``).
-    Raises :class:`StartError` (nothing started) when the weights' folder is not writable, the
-    control socket cannot be made, or the weights cannot be set aside."""
+    signal still changes nothing (the command line's ``run``). ``clock``/``sleep``: the tick clock
+    and the sleep between ticks and between the stop's IDLE frames (default ``time.monotonic`` and
+    ``time.sleep``; a test steps a simulated leg inside ``sleep``).
+    Raises :class:`StartError` (an :class:`~controller.errors.InputError`, nothing started) when
+    the weights' folder is not writable, the control socket cannot be made, the weights cannot be
+    set aside, or the records or ticks file cannot be written; :class:`controller.errors.BusError`
+    when the bus cannot be opened."""
+    clock = time.monotonic if clock is None else clock
+    sleep = time.sleep if sleep is None else sleep
     t_start = time.time()
     stop: dict[str, Any] = {"flag": False, "by": "duration", "signals": []}
 
@@ -245,7 +295,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                 signal.signal(s, handler)
 
     try:
-        raw_bus = can.Bus(**bus_kw)
+        raw_bus = open_bus(bus_kw)  # controller.errors.BusError (one line) when it cannot be opened
     except BaseException:
         give_back()
         if server is not None:
@@ -262,19 +312,27 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
     loop.io.reopen = lambda: lean(can.Bus(**bus_kw), timestamps=False)
     autosave = None if weights is None else WeightAutosave(weights, config.encoder.cell_width_m, autosave_config,
                                                            saved=initial, generations=weights_generations)
+    rec = tick_file = None
     try:
-        rec = Records(records, records_max_bytes, records_keep)
+        what = records
+        rec = Records(records, records_max_bytes, records_keep, monotonic=clock)
+        what = ticks
         tick_file = None if not ticks else RotatingFile(ticks, records_max_bytes, records_keep, binary=True,
                                                         rotate_at_start=True)
-    except OSError:
+    except BaseException as exc:
         give_back()
+        if rec is not None:
+            rec.close()
         if server is not None:
             server.close()
         raw_bus.shutdown()
+        if isinstance(exc, OSError):
+            raise StartError(f"cannot write {what}: {exc.strerror or exc} (check --records/--ticks and the folder's "
+                             f"permissions)") from None
         raise
     for old, moved, why in ([] if resumed is None else resumed.set_aside):
         rec.write({"kind": "weights", "event": "set_aside", "file": old, "moved_to": moved, "reason": why})
-    pacer = Pacer(config.period_s, catch_up=False, late_factor=config.late_factor)
+    pacer = Pacer(config.period_s, catch_up=False, late_factor=config.late_factor, clock=clock, sleep=sleep)
     notify = DaemonNotify()  # systemd's READY/WATCHDOG/STATUS/STOPPING; a no-op without NOTIFY_SOCKET
     phase = None
     stats = loop.stats
@@ -282,7 +340,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
     tick_buf = array("d")
     received = loop.io.received  # frames read by the loop, across bus reopens
     version = _version()
-    clock = {"now": math.nan}
+    tick_now = {"now": math.nan}
     commands: list[dict[str, Any]] = []
 
     def daemon_status() -> dict[str, Any]:
@@ -301,7 +359,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
         return st
 
     def execute(verb: str) -> tuple[str | None, dict[str, Any]]:
-        now = clock["now"]
+        now = tick_now["now"]
         refused = None
         if verb == "arm":
             refused = loop.request_arm(now)
@@ -331,7 +389,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                 stop["by"] = "event"
                 break
             if server is not None:
-                clock["now"] = now
+                tick_now["now"] = now
                 server.run_pending(execute)  # the operator's commands, on this thread, before the tick
             loop.tick(now)
             notify.tick(now)  # WATCHDOG=1 when due: from this loop only, so a stuck loop stops pinging
@@ -374,7 +432,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                     loop.io.bus.send(a.state_frame(AxisState.IDLE))  # the bus in use (maybe reopened)
                 except can.CanError:
                     pass
-            time.sleep(0.01)
+            sleep(0.01)
         if server is not None:
             server.close()  # no command runs after the axes were sent IDLE
         if tick_file is not None:
@@ -430,24 +488,63 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
     return final
 
 
-def read_records(path: str | Path) -> dict[str, list[dict[str, Any]]]:
+def read_records(path: str | Path, *, live: bool = False) -> dict[str, list[dict[str, Any]]]:
+    """The records file at ``path`` (one part: ``FILE`` or a rotated ``FILE.k``), its lines by kind:
+    ``{"phase": [...], "step": [...], "reflex": [...], "final": [...], "clock": [...], ...}`` (the four
+    first always present, in file order; the format line is checked, not returned).
+    A records file begins with its format line or, before it existed (version 0), its clock line.
+
+    The format: a first line ``{"kind": "format", "format": "controller-records", "format_version": 1,
+    ...}``; a file without it (written before it existed) is version 0 and read the same way.
+    A last line that is not whole JSON (the daemon killed while writing it) is dropped with a
+    warning; with ``live`` (a file the running daemon is still writing, polled) it is dropped
+    quietly: its end is still to come. Raises :class:`~controller.errors.InputError` naming the
+    file for another kind of file or a version this reader does not know, and naming the line for
+    a damaged line before the last; ``FileNotFoundError`` when there is no file."""
+    path = Path(path)
     out: dict[str, list[dict[str, Any]]] = {"phase": [], "step": [], "reflex": [], "final": []}
-    for line in Path(path).read_text().splitlines():
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        line_no = path.read_bytes()[: exc.start].count(b"\n") + 1
+        raise InputError(f"{path}: line {line_no}: not UTF-8 text: a damaged controller records file") from None
+    lines = text.splitlines()
+    last = max((i for i, line in enumerate(lines) if line.strip()), default=-1)
+    first = True
+    for i, line in enumerate(lines):
         if not line.strip():
             continue
         try:
             obj = json.loads(line)
-        except ValueError:
-            continue  # a line cut short by a kill
-        out.setdefault(obj.get("kind", "other"), []).append(obj)
+        except (ValueError, RecursionError):
+            obj = None
+        if not isinstance(obj, dict):
+            if i == last:
+                (log.debug if live else log.warning)("%s: line %d is not a whole record (%s): dropped", path, i + 1,
+                                                     "still being written" if live else "cut short by a kill?")
+                continue
+            raise InputError(f"{path}: line {i + 1}: not a JSON record ({line[:40]!r}...): a damaged controller "
+                             f"records file (the damage starts there)")
+        kind = obj.get("kind", "other")
+        if first:
+            first = False
+            if kind != "format" and kind != "clock":  # version 0 began with its clock line
+                raise InputError(f"{path}: not a controller records file (line {i + 1} is neither its format line "
+                                 f"nor its clock line)")
+        if kind == "format":
+            check_stamp(obj, RECORDS_FORMAT, RECORDS_VERSIONS, source=str(path))
+            continue
+        out.setdefault(kind if isinstance(kind, str) else "other", []).append(obj)
     return out
 
 
 def phases_seen(path: str | Path) -> list[str]:
+    """The phases in the records at ``path`` so far (a file the daemon is writing: ``live``); [] without a file."""
     try:
-        return [r["phase"] for r in read_records(path)["phase"]]
+        return [r["phase"] for r in read_records(path, live=True)["phase"]]
     except FileNotFoundError:
         return []
 
 
-__all__ = ["run_controller", "read_records", "phases_seen", "Phase", "StartError", "STOP_SIGNALS"]
+__all__ = ["run_controller", "read_records", "phases_seen", "Phase", "StartError", "STOP_SIGNALS", "RECORDS_FORMAT",
+           "RECORDS_VERSION", "RECORDS_VERSIONS"]

@@ -13,7 +13,8 @@ supervisor acts on it in that tick. The drivers' health readings (Get_Bus_Voltag
 Get_Temperature, Get_Iq, sent cyclically: :mod:`controller.io.health`) are kept as they come.
 
 Every position command passes through :meth:`AxisLink.pos_frame`, which clamps the target into
-``[min_rad, max_rad]`` (a NaN target holds the last one) and then clamps the motor position it
+``[min_rad, max_rad]`` (a NaN or infinite target holds the last target, or before any the measured
+position, or 0; never a limit) and then clamps the motor position it
 encodes into ``pos_bounds_rev``: the float32 values whose joint angle, converted back with the
 axis's :class:`AxisConfig`, lies inside ``[min_rad, max_rad]``. Rounding to
 the frame's float32 can therefore never carry a target past a limit: no code path can put a
@@ -291,6 +292,9 @@ class AxisLink:
 
     # -- commands ------------------------------------------------------------------------
     def clamp(self, q_rad: float) -> float:
+        """``q_rad`` [rad] inside ``[min_rad, max_rad]``: a finite target outside goes to the nearest
+        limit; a NaN or infinite one holds the last target (before any: the measured position, or
+        0), clamped too. Each changed target is counted in ``clamped_targets``."""
         c = self.config
         if c.min_rad <= q_rad <= c.max_rad:
             return q_rad

@@ -50,7 +50,8 @@ range that holds float32 motor positions; ``stale_heartbeat_periods >= silence_p
 node-silence timeout (``heartbeat_period_s * silence_periods``) between 5 control periods and
 :data:`MAX_SILENCE_TIMEOUT_S`; at least :data:`MIN_COMMANDS_PER_WATCHDOG` commands per driver
 watchdog timeout; a standard CAN bit rate with room for the loop's frames
-(:data:`MAX_BUS_LOAD`); the CPG's burst bounds; the encoder's cells within its range and its
+(:data:`MAX_BUS_LOAD`); the CPG's burst bounds; ``health.min_bus_voltage_v <
+health.max_bus_voltage_v``; the encoder's cells within its range and its
 range within the range filter's; a leg long enough to reach the ground; ``controller.auto_arm``
 only on a simulated bus; on a real bus, the keys of :data:`REAL_BUS_REQUIRED` given in the file.
 
@@ -73,9 +74,10 @@ import datetime
 import logging
 import os
 import re
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, TextIO
 
 try:
     import tomllib
@@ -86,6 +88,7 @@ from can.interfaces import VALID_INTERFACES
 
 from controller.atomic import write_text_atomic
 from controller.config import ControllerConfig
+from controller.errors import InputError
 from controller.io.axis import AxisConfig, float32_target_bounds_rev
 from controller.motion.kinematics import REACH
 from controller.settings.schema import (Setting, _num, _show, check_settings, setting, settings_of, toml_string,
@@ -329,10 +332,10 @@ def is_simulated_bus(interface: str, channel: str) -> bool:
     return interface == "virtual" or str(channel).startswith(SIM_CHANNEL_PREFIX)
 
 
-class ConfigError(ValueError):
-    """A configuration with problems. ``problems``: one line each, every one naming its field;
-    ``source``: the file (or ``"<config>"``). ``str()`` is every problem on its own line, each
-    prefixed with the source."""
+class ConfigError(InputError):
+    """A configuration with problems (an :class:`~controller.errors.InputError`: exit 3).
+    ``problems``: one line each, every one naming its field; ``source``: the file (or
+    ``"<config>"``). ``str()`` is every problem on its own line, each prefixed with the source."""
 
     def __init__(self, problems: list[str], source: str | os.PathLike = "<config>") -> None:
         self.problems = list(problems)
@@ -341,6 +344,17 @@ class ConfigError(ValueError):
 
     def lines(self) -> list[str]:
         return [f"{self.source}: {p}" for p in self.problems]
+
+    def reported(self, stream: TextIO | None = None) -> InputError:
+        """What a command raises for this error: with one problem, itself (one line); with
+        several, each is printed on its own line to ``stream`` (stderr) and the error returned is
+        one line counting them."""
+        if len(self.problems) <= 1:
+            return self
+        for line in self.lines():
+            print(line, file=sys.stderr if stream is None else stream)
+        return InputError(f"{self.source}: {len(self.problems)} problems in the configuration (each on its own "
+                          "line above)")
 
 
 # ----------------------------------------------------------------------------- the schema
@@ -520,6 +534,9 @@ def _cross_checks(t: Tables, bad: set[str], problems: list[str]) -> None:
         problems.append(f"{bmax} = {_show(v(bmax))} s must be at least {bmin} = {_show(v(bmin))} s")
     elif ok(b, bmin, bmax) and not v(bmin) <= v(b) <= v(bmax):
         problems.append(f"{b} = {_show(v(b))}: must be in [{bmin}, {bmax}] = [{_show(v(bmin))}, {_show(v(bmax))}] s")
+    vmin, vmax = "health.min_bus_voltage_v", "health.max_bus_voltage_v"
+    if ok(vmin, vmax) and not v(vmin) < v(vmax):  # HealthConfig's own check, named here
+        problems.append(f"{vmin} = {_show(v(vmin))} V must be below {vmax} = {_show(v(vmax))} V")
     width, enc_range, filt_range = "encoder.cell_width_m", "encoder.max_range_m", "range_filter.max_range_m"
     if ok(width, enc_range) and v(width) > v(enc_range):
         problems.append(f"{width} = {_show(v(width))} m must be at most {enc_range} = {_show(v(enc_range))} m")
@@ -595,12 +612,42 @@ def _real_bus_checks(t: Tables, bad: set[str], given: set[str], problems: list[s
                         "never a real leg's calibration: docs/deploy.md, section 3)")
 
 
+MAX_NESTING = 16
+"""The deepest nesting of tables and arrays :func:`config_from_dict` looks into (a configuration
+has at most three: ``axes``, ``hip``, a value); deeper is refused before validation, whose
+messages and checks recurse."""
+
+
+def _too_deep(data: Any, limit: int = MAX_NESTING) -> str | None:
+    """The dotted path of the first value nested deeper than ``limit`` tables and arrays in
+    ``data``, or None; iterative, so no depth can exhaust Python's recursion."""
+    stack: list[tuple[Any, str, int]] = [(data, "", 0)]
+    while stack:
+        value, where, depth = stack.pop()
+        if isinstance(value, Mapping):
+            items = [(str(k), v) for k, v in value.items()]
+        elif isinstance(value, (list, tuple)):
+            items = [(f"[{i}]", v) for i, v in enumerate(value)]
+        else:
+            continue
+        if depth >= limit:
+            return where or "the document"
+        for key, v in items:
+            stack.append((v, f"{where}{key}" if key.startswith("[") or not where else f"{where}.{key}", depth + 1))
+    return None
+
+
 def config_from_dict(data: Mapping[str, Any], source: str | os.PathLike = "<config>",
                      base_dir: str | os.PathLike | None = None) -> DeployConfig:
     """The configuration a parsed TOML document describes, defaults for what it leaves out.
     ``base_dir``: relative paths (the weights', the control socket's) are taken relative to it
     (and stored absolute).
-    Raises :class:`ConfigError` with every problem found."""
+    Raises :class:`ConfigError` with every problem found (a document nested deeper than
+    :data:`MAX_NESTING` with that one problem)."""
+    deep = _too_deep(data)
+    if deep is not None:
+        raise ConfigError([f"{deep}: nested more than {MAX_NESTING} tables or arrays deep: not a configuration (it "
+                           "is tables of keys and values)"], source)
     tables, problems = validate_tables(data)
     if not problems:
         for section, key in (("weights", "path"), ("service", "control_socket")):
@@ -632,9 +679,16 @@ _AT_LINE = re.compile(r"at line (\d+), column (\d+)")
 
 def config_from_toml(text: str, source: str | os.PathLike = "<config>",
                      base_dir: str | os.PathLike | None = None) -> DeployConfig:
-    """The configuration in TOML ``text`` (see :func:`config_from_dict`)."""
+    """The configuration in TOML ``text`` (see :func:`config_from_dict`). Whatever the parser
+    refuses is one :class:`ConfigError` naming the source: malformed TOML (with the line), a
+    document nested deeper than the parser's recursion allows (``tomllib`` raises ``RecursionError``
+    near 300-500 levels: no configuration is nested more than two), an integer longer than Python
+    converts (4300 digits)."""
     try:
         data = tomllib.loads(text)
+    except RecursionError:
+        raise ConfigError(["not a configuration: TOML nested too deeply to read (arrays or tables inside each "
+                           "other hundreds of times; a configuration is tables of keys and values)"], source) from None
     except tomllib.TOMLDecodeError as exc:
         problem = f"not valid TOML: {exc}"
         m = _AT_LINE.search(str(exc))
@@ -645,6 +699,8 @@ def config_from_toml(text: str, source: str | os.PathLike = "<config>",
             problem += " (this looks like JSON: the configuration is TOML now; `elegant-stepping config show` " \
                        "prints every setting as TOML)"
         raise ConfigError([problem], source) from None
+    except ValueError as exc:  # what tomllib passes on from int() or datetime (an integer of 5000 digits)
+        raise ConfigError([f"not valid TOML: {' '.join(str(exc).split())}"], source) from None
     return config_from_dict(data, source, base_dir)
 
 
@@ -731,8 +787,9 @@ def summary(config: DeployConfig) -> str:
 
 
 # ----------------------------------------------------------------------------- confirming the calibration
-class ConfirmRefused(ValueError):
-    """``config confirm`` refused: one line saying why and what to do."""
+class ConfirmRefused(InputError):
+    """``config confirm`` refused: one line saying why and what to do (exit 3: the report or the
+    file is the input to fix)."""
 
 
 def bringup_report_problem(config: DeployConfig, report: Any, report_name: str) -> str | None:

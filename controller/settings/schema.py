@@ -75,14 +75,21 @@ def toml_value(value: Any) -> str:
     raise TypeError(f"no TOML for {value!r}")
 
 
+SHOW_MAX_CHARS = 80
+"""The longest value a message quotes; a longer one is cut, with ``...`` (a message stays one line a
+person reads, whatever the file holds)."""
+
+
 def _show(value: Any) -> str:
-    """The value found, for a message: as it would be written in TOML."""
+    """The value found, for a message: as it would be written in TOML, at most
+    :data:`SHOW_MAX_CHARS` characters."""
     if isinstance(value, dict):
         return "a table"
     try:
-        return toml_value(value)
+        text = toml_value(value)
     except TypeError:
-        return repr(value)
+        text = repr(value)
+    return text if len(text) <= SHOW_MAX_CHARS else text[: SHOW_MAX_CHARS - 3] + "..."
 
 
 def _type_name(value: Any) -> str:

@@ -1,16 +1,28 @@
-"""Learned weights on disk: crash-safe ``.npz`` files with a schema version and a checksum, never pickle.
+"""Learned weights on disk: crash-safe ``.npz`` files with a schema version, the project's version
+and a checksum, never pickle.
 
 ``weights`` is 1-D, one weight per range cell (:class:`controller.stepping.learner.AdaptivePremotor`), or
 2-D, one row of cells per height context (:class:`controller.stepping.context.ContextPremotor`).
 
-The format (schema version :data:`SCHEMA_VERSION` = 2) is an uncompressed ``.npz`` (a zip of
+The format (schema version :data:`SCHEMA_VERSION` = 3) is an uncompressed ``.npz`` (a zip of
 ``.npy`` arrays, read with ``allow_pickle=False`` always) holding exactly these arrays:
 
 - ``weights``: float64, shape ``(n_cells,)`` or ``(n_contexts, n_cells)`` [s];
 - ``cell_width_m``: float64 scalar, the range encoder's cell width [m];
-- ``schema_version``: int64 scalar, 2;
+- ``schema_version``: int64 scalar, 3;
+- ``project_version``: a unicode scalar (0-d array, no pickle), the version of elegant-stepping
+  that wrote the file (:func:`controller.errors.project_version`), for the person reading an
+  error about the file and for :func:`read_stored_weights`;
 - ``checksum``: a unicode scalar, the SHA-256 (hex) of :func:`checksum`'s canonical encoding
-  of (schema version, shape, dtype, cell width, the weight bytes).
+  of (schema version, shape, dtype, cell width, the weight bytes, and from schema 3 the project
+  version).
+
+Readers accept schema 3, schema 2 (the same without ``project_version``; its checksum does not
+cover one) and legacy schema 1 files (below). Any other schema version is refused with a
+:class:`UnknownWeightsVersion` naming the file, the version and, where the file says it, the
+elegant-stepping that wrote it. Such a file (a newer program's weights) is intact weights this
+version cannot read, so it is kept like a good copy: :func:`resume_weights` sets it aside, and a
+save (with ``generations`` >= 2) keeps it as ``<name>.prev`` and rotates it like any good copy.
 
 Saving (:func:`save_weights`) writes a temporary file in the same folder, flushes and fsyncs it,
 rotates the older good copies (``generations`` files in all, default 2: ``<name>``, ``<name>.prev``,
@@ -29,18 +41,20 @@ checksum mismatch, the wrong shape or cell width for this controller, NaN or inf
 
 :func:`resume_weights` is the daemon's loader: the same order, and a file that is intact but does
 not fit this controller (:class:`IncompatibleWeights`: another shape or cell width, i.e. another
-configuration's weights) is never left where a save could rotate it away or write over it: it is
-renamed aside to ``<name>.incompatible-<UTC timestamp>`` (:func:`set_aside`) and reported.
+configuration's weights, or an unknown schema version) is never left where a save could rotate it
+away or write over it: it is renamed aside to ``<name>.incompatible-<UTC timestamp>``
+(:func:`set_aside`) and reported.
 
 Legacy files (schema 1: exactly ``weights`` and ``cell_width_m``, written before schema
 versions existed, e.g. old ``learn`` output folders) are still loaded, with a logged warning:
 they were written by an atomic save, and the zip's CRC-32 of each array still catches damaged
-bytes. The next save rewrites them in schema 2. Any other set of arrays (so a damaged array name
+bytes. The next save rewrites them in schema 3. Any other set of arrays (so a damaged array name
 never passes for a legacy file) or any other schema version is rejected.
 """
 
 from __future__ import annotations
 
+import functools
 import glob
 import hashlib
 import logging
@@ -56,15 +70,29 @@ from pathlib import Path
 import numpy as np
 
 from controller.atomic import fsync_dir
+from controller.errors import project_version as _installed_version
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 LEGACY_SCHEMA_VERSION = 1  # no schema_version array: weights and cell_width_m only
+READ_VERSIONS = (1, 2, 3)
+"""The schema versions :func:`read_weights` reads (1: legacy, with a warning)."""
 _MAGIC = b"elegant-stepping weights\x00"
 _DTYPE = np.dtype("<f8")
-_ARRAYS = {"weights", "cell_width_m", "schema_version", "checksum"}
-_LEGACY_ARRAYS = {"weights", "cell_width_m"}
+_LEGACY_ARRAYS = frozenset({"weights", "cell_width_m"})
+_ARRAYS_BY_VERSION = {
+    2: frozenset({"weights", "cell_width_m", "schema_version", "checksum"}),
+    3: frozenset({"weights", "cell_width_m", "schema_version", "project_version", "checksum"}),
+}
+_ARRAYS = _ARRAYS_BY_VERSION[SCHEMA_VERSION]
+
+
+@functools.lru_cache(maxsize=1)
+def project_version() -> str:
+    """The installed elegant-stepping's version (:func:`controller.errors.project_version`), looked
+    up once per process: the lookup costs about 3 ms, more than a save's own work."""
+    return _installed_version()
 
 
 class WeightsError(ValueError):
@@ -73,6 +101,28 @@ class WeightsError(ValueError):
 
 class IncompatibleWeights(WeightsError):
     """An intact weights file that does not fit this controller (shape or cell width)."""
+
+
+class UnknownWeightsVersion(IncompatibleWeights):
+    """A weights file of a schema version this program does not read (a newer program's): intact
+    weights, kept like another configuration's (set aside, kept as ``.prev``), never written over."""
+
+
+@dataclass(frozen=True)
+class StoredWeights:
+    """What a weights file holds (:func:`read_stored_weights`).
+
+    Attributes:
+        weights: float64, shape ``(n_cells,)`` or ``(n_contexts, n_cells)`` [s].
+        cell_width_m: the range encoder's cell width [m].
+        schema_version: 1 (legacy), 2 or 3.
+        project_version: the elegant-stepping that wrote it (schema 3), else None.
+    """
+
+    weights: np.ndarray
+    cell_width_m: float
+    schema_version: int
+    project_version: str | None
 
 
 def prev_path(path: str | Path) -> Path:
@@ -110,10 +160,12 @@ def set_aside(path: str | Path, now: float | None = None) -> Path:
     return target
 
 
-def checksum(weights: np.ndarray, cell_width_m: float, schema_version: int = SCHEMA_VERSION) -> str:
+def checksum(weights: np.ndarray, cell_width_m: float, schema_version: int = SCHEMA_VERSION,
+             project_version: str = "") -> str:
     """SHA-256 (hex) of the canonical encoding: a magic string, the schema version, the number of
     dimensions and each dimension (int64 little endian), the dtype (``<f8``), the cell width
-    (float64 little endian) and the weights (float64 little endian, C order)."""
+    (float64 little endian), the weights (float64 little endian, C order) and, from schema 3, the
+    project version (its UTF-8 length as int64 little endian, then its bytes)."""
     w = np.ascontiguousarray(weights, dtype=_DTYPE)
     h = hashlib.sha256(_MAGIC)
     h.update(struct.pack("<qq", int(schema_version), w.ndim))
@@ -121,6 +173,9 @@ def checksum(weights: np.ndarray, cell_width_m: float, schema_version: int = SCH
     h.update(_DTYPE.str.encode("ascii") + b"\x00")
     h.update(struct.pack("<d", float(cell_width_m)))
     h.update(w.tobytes(order="C"))
+    if int(schema_version) >= 3:
+        text = str(project_version).encode("utf-8")
+        h.update(struct.pack("<q", len(text)) + text)
     return h.hexdigest()
 
 
@@ -149,9 +204,12 @@ def stale_temporaries(path: str | Path) -> list[Path]:
 
 
 def _keep_previous(path: Path) -> None:
-    """Make ``<name>.prev`` name the current file (if valid) without the main path ever missing."""
+    """Make ``<name>.prev`` name the current file (if valid, or of a schema version this program
+    does not read) without the main path ever missing."""
     try:
         read_weights(path)
+    except UnknownWeightsVersion as exc:
+        log.warning("%s; kept as %s", exc, prev_path(path))
     except WeightsError as exc:
         if path.exists():
             log.warning("%s is not a valid weights file, so %s is left as it is (%s)", path, prev_path(path), exc)
@@ -171,8 +229,11 @@ def _keep_previous(path: Path) -> None:
 
 
 def _is_valid(path: Path) -> bool:
+    """True for a file :func:`read_weights` reads, or one of a schema version it does not (kept)."""
     try:
         read_weights(path)
+    except UnknownWeightsVersion:
+        return True
     except WeightsError:
         return False
     return True
@@ -209,9 +270,10 @@ def save_weights(path: str | Path, weights: np.ndarray, cell_width_m: float, gen
     fd, tmp = tempfile.mkstemp(prefix=f"{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
+            version = project_version()
             np.savez(f, weights=weights, cell_width_m=np.float64(cell_width_m),
-                     schema_version=np.int64(SCHEMA_VERSION),
-                     checksum=np.array(checksum(weights, cell_width_m), dtype="U64"))
+                     schema_version=np.int64(SCHEMA_VERSION), project_version=np.array(version, dtype=np.str_),
+                     checksum=np.array(checksum(weights, cell_width_m, SCHEMA_VERSION, version), dtype="U64"))
             f.flush()
             os.fsync(f.fileno())
         if generations >= 2:
@@ -234,9 +296,28 @@ def _scalar(data, name: str, path: Path, kind: str):
     return a[()]
 
 
-def read_weights(path: str | Path) -> tuple[np.ndarray, float]:
-    """The weights [s] and cell width [m] in ``path``, checked for integrity (format, schema
-    version, checksum, dtype, finiteness) but not against any controller's shape."""
+def _writer(data, names) -> str:
+    """Who wrote a file of an unknown schema version, for the message: its project_version if it
+    holds a readable one."""
+    try:
+        if "project_version" in names:
+            a = data["project_version"]
+            if a.shape == () and a.dtype.kind == "U":
+                return f" (written by elegant-stepping {str(a[()])})"
+    except Exception:  # noqa: BLE001 - only for the message: the file is refused anyway
+        pass
+    return ""
+
+
+def read_stored_weights(path: str | Path) -> StoredWeights:
+    """Everything in the weights file ``path`` (weights [s], cell width [m], schema version,
+    project version), checked for integrity (format, schema version, arrays, checksum, dtype,
+    finiteness) but not against any controller's shape.
+
+    Raises:
+        WeightsError: naming the file and what is wrong; :class:`UnknownWeightsVersion` for a schema
+            version other than :data:`READ_VERSIONS`.
+    """
     path = Path(path)
     if not path.exists():
         raise WeightsError(f"{path}: no such weights file")
@@ -247,6 +328,7 @@ def read_weights(path: str | Path) -> tuple[np.ndarray, float]:
         raise WeightsError(f"{path}: cannot be read ({exc})") from None
     if head != b"PK\x03\x04":
         raise WeightsError(f"{path}: not a readable weights file: " + ("empty" if not head else "not an .npz archive"))
+    stored_sum = stored_project = None
     try:
         with np.load(path, allow_pickle=False) as data:
             names = set(data.files)
@@ -259,15 +341,23 @@ def read_weights(path: str | Path) -> tuple[np.ndarray, float]:
                 if "schema_version" not in names:  # e.g. a damaged name in the zip's directory
                     raise WeightsError(f"{path}: array 'schema_version' missing (the file has {sorted(names)})")
                 version = int(_scalar(data, "schema_version", path, "iu"))
-                if version != SCHEMA_VERSION:
-                    raise WeightsError(f"{path}: schema version {version}, this controller reads version "
-                                       f"{SCHEMA_VERSION} (and legacy files without one)")
-                if names != _ARRAYS:
-                    missing, unknown = sorted(_ARRAYS - names), sorted(names - _ARRAYS)
+                expected = _ARRAYS_BY_VERSION.get(version)
+                if version == LEGACY_SCHEMA_VERSION:
+                    raise WeightsError(f"{path}: schema version 1 in a schema_version array: a legacy file has "
+                                       f"exactly {sorted(_LEGACY_ARRAYS)}, this one {sorted(names)}")
+                if expected is None:
+                    raise UnknownWeightsVersion(
+                        f"{path}: weights schema version {version}{_writer(data, names)} is not one this version of "
+                        f"elegant-stepping ({project_version()}) reads ({', '.join(map(str, READ_VERSIONS))}); use a "
+                        f"matching elegant-stepping")
+                if names != expected:
+                    missing, unknown = sorted(expected - names), sorted(names - expected)
                     raise WeightsError(f"{path}: " + (f"array {missing[0]!r} missing" if missing else
                                                       f"unknown arrays {unknown}") +
-                                       f" (schema {SCHEMA_VERSION} has exactly {sorted(_ARRAYS)})")
+                                       f" (schema {version} has exactly {sorted(expected)})")
                 stored_sum = str(_scalar(data, "checksum", path, "U"))
+                if "project_version" in expected:
+                    stored_project = str(_scalar(data, "project_version", path, "U"))
             raw = data["weights"]
             width = float(_scalar(data, "cell_width_m", path, "fiu"))
     except WeightsError:
@@ -276,10 +366,10 @@ def read_weights(path: str | Path) -> tuple[np.ndarray, float]:
         raise WeightsError(f"{path}: not a readable weights file: truncated or damaged .npz archive ({exc})") from None
     except (OSError, ValueError, TypeError, KeyError, MemoryError, NotImplementedError, zipfile.LargeZipFile) as exc:
         raise WeightsError(f"{path}: not a readable weights file ({type(exc).__name__}: {exc})") from None
-    if version == SCHEMA_VERSION:
+    if version != LEGACY_SCHEMA_VERSION:
         if raw.dtype != _DTYPE:
-            raise WeightsError(f"{path}: weights are {raw.dtype}, schema {SCHEMA_VERSION} stores float64")
-        if stored_sum != checksum(raw, width, version):
+            raise WeightsError(f"{path}: weights are {raw.dtype}, schema {version} stores float64")
+        if stored_sum != checksum(raw, width, version, stored_project or ""):
             raise WeightsError(f"{path}: checksum mismatch (the file is damaged or was not written by save_weights)")
     else:
         if raw.dtype.kind not in "fiu":
@@ -293,7 +383,15 @@ def read_weights(path: str | Path) -> tuple[np.ndarray, float]:
         raise WeightsError(f"{path}: weights contain NaN or infinity")
     if not (np.isfinite(width) and width > 0):
         raise WeightsError(f"{path}: cell width {width} m is not positive")
-    return weights, width
+    return StoredWeights(weights, width, version, stored_project)
+
+
+def read_weights(path: str | Path) -> tuple[np.ndarray, float]:
+    """The weights [s] and cell width [m] in ``path``, checked for integrity (format, schema
+    version, checksum, dtype, finiteness) but not against any controller's shape
+    (:func:`read_stored_weights` also gives the versions)."""
+    stored = read_stored_weights(path)
+    return stored.weights, stored.cell_width_m
 
 
 def load_weights(path: str | Path, n_cells: int, cell_width_m: float, n_contexts: int | None = None) -> np.ndarray:
@@ -389,6 +487,7 @@ def resume_weights(path: str | Path, n_cells: int, cell_width_m: float, n_contex
     return out
 
 
-__all__ = ["SCHEMA_VERSION", "IncompatibleWeights", "Resumed", "WeightsError", "checksum", "generation_name",
-           "generation_path", "load_weights", "load_weights_or_fallback", "prev_path", "read_weights", "resume_weights",
-           "save_weights", "set_aside", "stale_temporaries"]
+__all__ = ["READ_VERSIONS", "SCHEMA_VERSION", "IncompatibleWeights", "Resumed", "StoredWeights", "UnknownWeightsVersion",
+           "WeightsError", "checksum", "generation_name", "generation_path", "load_weights", "load_weights_or_fallback",
+           "prev_path", "read_stored_weights", "read_weights", "resume_weights", "save_weights", "set_aside",
+           "stale_temporaries"]

@@ -11,23 +11,86 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from controller.stepping.weights import read_weights
+from controller.errors import InputError, check_stamp
+from controller.stepping.weights import WeightsError, read_weights
+
+METRICS_FILE = "metrics.json"
+METRICS_FORMAT = "learn-metrics"
+METRICS_VERSIONS = (0, 1)
+"""A learn run's ``metrics.json``: version 1 is stamped (:func:`controller.errors.stamp`); version 0
+is a file written before stamps (the same keys without them), still read for old folders."""
+
+
+def check_metrics(metrics: Any, source: str | Path, *, trial_keys: Sequence[str] = (),
+                  parts: Sequence[str] = ("config", "trials", "summary")) -> dict[str, Any]:
+    """``metrics`` (a parsed ``metrics.json``) after checking its stamp and its structure: the
+    ``parts`` it must have (by default all three: a ``config`` object, a ``trials`` list of objects
+    each with a boolean ``success`` and the ``trial_keys``, a ``summary`` object).
+
+    Raises:
+        InputError: another kind of file, an unknown format version, or a wrong structure; the
+            message names ``source``.
+    """
+    check_stamp(metrics, METRICS_FORMAT, METRICS_VERSIONS, str(source))
+    for key, kind in (("config", dict), ("trials", list), ("summary", dict)):
+        if key not in parts and key != "trials":
+            continue
+        if not isinstance(metrics.get(key), kind):
+            got = "missing" if key not in metrics else f"a {type(metrics[key]).__name__}"
+            raise InputError(f"{source}: not a learn run's metrics ('{key}' is {got}, "
+                             f"{'an object' if kind is dict else 'a list'} expected)")
+    for k, trial in enumerate(metrics["trials"]):
+        if not isinstance(trial, dict) or not isinstance(trial.get("success"), bool):
+            raise InputError(f"{source}: trial {k} is not a trial record (an object with a boolean 'success' expected)")
+        for key in trial_keys:
+            if key not in trial:
+                raise InputError(f"{source}: trial {k} has no '{key}' (not a learn run's trial record)")
+    return metrics
+
+
+def read_metrics(path: str | Path, *, trial_keys: Sequence[str] = (),
+                 parts: Sequence[str] = ("config", "trials", "summary")) -> dict[str, Any]:
+    """A ``metrics.json`` (stamped, or of before stamps), checked by :func:`check_metrics`.
+
+    Raises:
+        FileNotFoundError: no such file.
+        InputError: not JSON, or not a learn run's metrics of a known version.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_bytes())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    return check_metrics(data, path, trial_keys=trial_keys, parts=parts)
 
 
 def load_run(folder: str | Path) -> dict[str, Any]:
+    """A learn output folder: its ``metrics.json`` (:func:`read_metrics`) and, if the folder has one,
+    its ``weights.npz`` as ``weights`` and ``cell_width_m``; the figures need each trial's
+    ``footfalls_m`` and the configuration's ``seed`` and ``learning``.
+
+    Raises:
+        FileNotFoundError: not a folder, or no ``metrics.json`` in it.
+        InputError: a damaged or wrong-structure ``metrics.json`` (or weights file), or one of an
+            unknown format version.
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: not a folder, so no metrics.json (give learn output folders)")
-    metrics_path = folder / "metrics.json"
+    metrics_path = folder / METRICS_FILE
     try:
-        metrics = json.loads(metrics_path.read_text())
+        metrics = read_metrics(metrics_path, trial_keys=("footfalls_m",))
     except FileNotFoundError:
         raise FileNotFoundError(f"{metrics_path}: no metrics.json (is {folder} a learn output folder?)") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{metrics_path}: not valid JSON ({exc})") from None
+    for key in ("seed", "learning"):
+        if key not in metrics["config"]:
+            raise InputError(f"{metrics_path}: config has no '{key}' (not a learn run's metrics)")
     weights_path = folder / "weights.npz"
     if weights_path.exists():
-        metrics["weights"], metrics["cell_width_m"] = read_weights(weights_path)  # WeightsError: a ValueError
+        try:
+            metrics["weights"], metrics["cell_width_m"] = read_weights(weights_path)
+        except WeightsError as exc:
+            raise InputError(str(exc)) from None
     return metrics
 
 
@@ -145,8 +208,8 @@ def analyze(folders: list[str | Path]) -> dict[str, Any]:
             "success_rate": window_success(t, 1, len(t)),
             "success_21_40": window_success(t, 21, 40),
             "mistakes_101_150": mistakes_101_150(t),
-            "wall_s": r["summary"]["wall_s"],
-            "sim_s": r["summary"]["sim_s"],
+            "wall_s": r["summary"].get("wall_s"),
+            "sim_s": r["summary"].get("sim_s"),
         }
         if "weights" in r and r["weights"].ndim == 1:  # one context (the context learner's are 2-D)
             peak = autocorrelation_peak(r["weights"], r["cell_width_m"])

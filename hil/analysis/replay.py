@@ -14,6 +14,14 @@ not fed (only the last 0.5 s before its first frame). With the live run's record
 same cell, burst change and burst length within 1 ms. The controller is configured as the live
 one was: ``controller.toml`` beside the log (or ``--config FILE``); a session recorded before the
 switch to TOML has a ``controller.json`` there instead, still read (with a warning).
+
+Both verbs read the log with :mod:`hil.analysis.buslog` (the one reader of bus logs): a damaged
+log (an empty, garbage, truncated or bit-flipped BLF, a junk line in a candump log) is an input
+error (exit 3) naming the frame or line where the damage starts, unless ``--partial``, which uses
+the valid frames before it and says so in one warning line. The recorder's metadata beside the log
+(``bus.blf.json``, :func:`hil.analysis.buslog.read_metadata`) is checked for its format version
+and gives the frame count the log must hold. Every other file replay reads (``--config``,
+``--records``, ``controller.ticks``) is checked for its structure; a problem is one line naming it.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ import cantools
 
 from controller.config import ControllerConfig
 from controller.loop import ControlLoop
+from hil.analysis.buslog import LogReading, read_frames, read_metadata
 from hil.session.recorder import SET_INPUT_POS, sent_by_controller
 from protocol import SENSOR_BOARD_NODE_ID, split_arbitration_id
 from protocol.contract import DBC_PATH, BusContract
@@ -84,7 +93,7 @@ def _align(inbound: list[can.Message], t_log: list[float], counts: list[int]) ->
 
 def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, tick_times: list[float] | None = None,
            tick_counts: list[int] | None = None, clock_offset_s: float | None = None,
-           drivers_watchdog_s: float | None = None) -> dict[str, Any]:
+           drivers_watchdog_s: float | None = None, frames: list[can.Message] | None = None) -> dict[str, Any]:
     """Replay ``log``. With ``tick_times`` (the live loop's clock at each tick, from
     ``controller.ticks``), ``tick_counts`` (frames it read in each tick) and ``clock_offset_s``
     (log timestamp minus that clock), the loop ticks when the live one did and reads in each
@@ -93,9 +102,15 @@ def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, ti
     The replayed controller arms by itself (``auto_arm``) as soon as every node is heard: a log
     holds no operator's command, and sessions recorded before the lifecycle existed armed so.
     ``drivers_watchdog_s``: the drivers' watchdog the live controller wrote at arming (its
-    configuration's ``[drivers]``), so the replayed one expects the same read-back."""
+    configuration's ``[drivers]``), so the replayed one expects the same read-back. ``frames``: the
+    log's frames as read (:func:`hil.analysis.buslog.read_frames`); default: read ``log`` whole (a
+    damaged log is an :class:`controller.errors.InputError`)."""
+    from controller.errors import InputError
+
     config = dataclasses.replace(config, auto_arm=True)
-    frames = [m for m in can.LogReader(str(log)) if not m.is_error_frame]
+    if frames is None:
+        frames = read_frames(log)
+    frames = [m for m in frames if not m.is_error_frame]
     frames.sort(key=lambda m: m.timestamp)
     hip_id = next(a.node_id for a in config.axes if a.name == "hip")
     bus = ReplayBus()
@@ -104,7 +119,7 @@ def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, ti
         loop.drivers_watchdog_timeout_s = drivers_watchdog_s
     first_ctl = next((i for i, m in enumerate(frames) if _is_controller(m)), None)
     if first_ctl is None:
-        raise ValueError(f"{log}: no frame from the controller in the log")
+        raise InputError(f"{log}: no frame from the controller in the log ({len(frames)} frames): nothing to replay")
     t_first = frames[first_ctl].timestamp
     inbound = [m for m in frames if not _is_controller(m) and m.timestamp >= t_first - PRE_START_S]
     # tick starts: the first controller frame after each hip Set_Input_Pos (and the very first)
@@ -173,12 +188,91 @@ def compare(replayed: list[dict[str, Any]], live: list[dict[str, Any]]) -> dict[
     return {"compared_steps": compared, "matching_steps": matching, "mismatches": mismatches}
 
 
-def main_replay(args) -> int:
-    from hil.analysis.legacy_config import load_controller_config
+STEP_FIELDS = ("index", "cell", "modulation_s", "burst_s")
+"""What replay compares of each live step record (``controller.jsonl``)."""
+
+
+def _live_steps(path: Path, option: str) -> list[dict[str, Any]]:
+    """The live run's step records in ``path``, each checked for what the comparison reads.
+
+    Raises:
+        InputError: not the controller's records (a line that is JSON but not an object, a step
+            record without its fields or with fields of the wrong type).
+    """
     from controller.daemon.run import read_records
+    from controller.errors import InputError
+
+    try:
+        steps = read_records(path).get("step", [])
+    except InputError as exc:  # the records' own reader names the line
+        raise InputError(f"{option}: {exc}" if option.startswith("--") else str(exc)) from None
+    except (AttributeError, TypeError):  # a JSON line that is not an object
+        raise InputError(f"{option} {path}: not the controller's records (a line that is not a JSON object)") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{option} {path}: not the controller's records (not text)") from None
+    for n, step in enumerate(steps, 1):
+        missing = [k for k in STEP_FIELDS if k not in step]
+        if missing:
+            raise InputError(f"{option} {path}: step record {n} lacks {', '.join(missing)}")
+        ok = (isinstance(step["index"], int) and (step["cell"] is None or isinstance(step["cell"], int))
+              and isinstance(step["modulation_s"], (int, float))
+              and (step["burst_s"] is None or isinstance(step["burst_s"], (int, float))))
+        if not ok:
+            raise InputError(f"{option} {path}: step record {n} has a field of the wrong type: "
+                             f"{ {k: step[k] for k in STEP_FIELDS} }")
+    return steps
+
+
+def _live_ticks(ticks_path: Path, rec_path: Path) -> tuple[list[float], list[int], float] | None:
+    """The live loop's ticks (its clock at each tick, frames read in it) and the clock offset,
+    from ``controller.ticks`` and the records' clock record; None where the records have none.
+
+    Raises:
+        InputError: the ticks file is not pairs of doubles, or the clock record lacks its offset.
+    """
+    from array import array
+
+    from controller.daemon.run import read_records
+    from controller.errors import InputError
+
+    clock = read_records(rec_path).get("clock") or []
+    if not clock:
+        return None
+    offset = clock[0].get("realtime_minus_monotonic_s")
+    if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not math.isfinite(offset):
+        raise InputError(f"{rec_path}: its clock record has no realtime_minus_monotonic_s ({offset!r})")
+    raw = ticks_path.read_bytes()
+    if len(raw) % 16:
+        raise InputError(f"{ticks_path}: {len(raw)} bytes, not whole (tick clock, frames read) pairs of doubles "
+                         f"(cut short at tick {len(raw) // 16 + 1})")
+    arr = array("d")
+    arr.frombytes(raw)
+    pairs = arr.tolist()
+    counts = pairs[1::2]
+    if not all(math.isfinite(n) and n == int(n) for n in counts):
+        raise InputError(f"{ticks_path}: a frame count that is not a whole number: not a controller.ticks file")
+    return pairs[0::2], [int(n) for n in counts], float(offset)
+
+
+def main_replay(args) -> int:
+    from controller.cli.common import check_output_file, warn
+    from controller.errors import InputError
+    from hil.analysis.legacy_config import load_controller_config
 
     log = Path(args.log)
+    check_output_file(args.json, "--json")
     cfg_path = args.config
+    if cfg_path is not None and not Path(cfg_path).is_file():
+        raise InputError(f"--config {cfg_path}: {'a folder, not a file' if Path(cfg_path).is_dir() else 'no such file'}")
+    if args.records is not None and not Path(args.records).is_file():
+        raise InputError(f"--records {args.records}: "
+                         f"{'a folder, not a file' if Path(args.records).is_dir() else 'no such file'}")
+    metadata = read_metadata(log)  # checked first: a session from a newer version is refused at once
+    reading = LogReading(log, None if metadata is None else metadata.get("frames"))
+    frames = list(reading)
+    line = reading.check(getattr(args, "partial", False))
+    if line is not None:
+        warn(args, line)
     if cfg_path is None:  # the session's: controller.toml, else an old session's controller.json (with a warning)
         candidates = (log.parent / "controller.toml", log.parent / "controller.json")
         cfg_path = next((p for p in candidates if p.exists()), None)
@@ -188,23 +282,18 @@ def main_replay(args) -> int:
         from controller.settings.file import load_config
 
         drivers_watchdog_s = load_config(cfg_path).drivers.watchdog_timeout_s
-    tick_times = tick_counts = offset = None
-    ticks_path = log.parent / "controller.ticks"
+    option = "--records" if args.records else "the records"
     rec_path = Path(args.records) if args.records else log.parent / "controller.jsonl"
-    if ticks_path.exists() and rec_path.exists():
-        from array import array
-
-        clock = read_records(rec_path).get("clock") or []
-        if clock:
-            arr = array("d")
-            arr.frombytes(ticks_path.read_bytes())
-            pairs = arr.tolist()
-            tick_times, tick_counts = pairs[0::2], [int(n) for n in pairs[1::2]]
-            offset = clock[0]["realtime_minus_monotonic_s"]
+    live = _live_steps(rec_path, option) if rec_path.exists() else None
+    ticks_path = log.parent / "controller.ticks"
+    ticks = _live_ticks(ticks_path, rec_path) if ticks_path.exists() and rec_path.exists() else None
+    tick_times, tick_counts, offset = ticks if ticks is not None else (None, None, None)
     result = replay(log, config, tick_times=tick_times, tick_counts=tick_counts, clock_offset_s=offset,
-                    drivers_watchdog_s=drivers_watchdog_s)
+                    drivers_watchdog_s=drivers_watchdog_s, frames=frames)
     result["config"] = None if cfg_path is None else str(cfg_path)
-    live = read_records(rec_path)["step"] if rec_path.exists() else None
+    result["partial"] = None if reading.damage is None else {"frames_read": reading.frames,
+                                                             "stopped_at": reading.damage.where,
+                                                             "reason": reading.damage.reason}
     if live is not None:
         result.update(compare(result["steps"], live))
         result["records"] = str(rec_path)
@@ -227,11 +316,9 @@ def main_replay(args) -> int:
         summary += f"; {result['matching_steps']}/{result['compared_steps']} steps as live"
     print(summary, file=sys.stderr)
     if args.json is not None:
-        text = json.dumps(result, indent=1)
-        if args.json == "-":
-            print(text)
-        else:
-            Path(args.json).write_text(text + "\n")
+        from controller.cli.common import write_json
+
+        write_json(args.json, result)
     return 0
 
 
@@ -246,18 +333,22 @@ def main_decode(args) -> int:
 
 
 def _decode(args) -> int:
-    if getattr(args, "load", False):
-        import json
+    from controller.cli.common import warn
 
+    partial = getattr(args, "partial", False)
+    if getattr(args, "load", False):
         from hil.analysis.busload import bus_load_from_log
 
-        print(json.dumps(bus_load_from_log(args.log, args.bitrate, args.skip_s), indent=2))
+        print(json.dumps(bus_load_from_log(args.log, args.bitrate, args.skip_s, partial=partial,
+                                           warn=lambda line: warn(args, line)), indent=2))
         return 0
+    metadata = read_metadata(args.log)
+    reading = LogReading(args.log, None if metadata is None else metadata.get("frames"))
     db = cantools.database.load_file(str(DBC_PATH))
     contract = BusContract.load()
-    for i, msg in enumerate(can.LogReader(str(args.log))):
+    for i, msg in enumerate(reading):
         if args.limit is not None and i >= args.limit:
-            break
+            return 0  # the rest is not read, so not judged
         arb = msg.arbitration_id
         route = None if msg.is_extended_id or msg.is_error_frame else contract.route(arb)
         head = f"{msg.timestamp:.6f} {arb:03X}"
@@ -277,4 +368,8 @@ def _decode(args) -> int:
             continue
         text = " ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in signals.items())
         print(f"{head} {who} {name} {text}")
+    sys.stdout.flush()  # the frames before the damage first, then the line about it
+    line = reading.check(partial)
+    if line is not None:
+        warn(args, line)
     return 0

@@ -22,9 +22,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from controller.atomic import write_text_atomic  # noqa: E402
+from controller.errors import InputError, check_stamp  # noqa: E402
 from hil.analysis.figures import _save, success_curves  # noqa: E402  (one way to write PNG + SVG; one curve plot)
+from hil.analysis.metrics import read_metrics  # noqa: E402
 from hil.experiments.methods import resolve  # noqa: E402
-from hil.experiments.sweep import cells_from_json, height_tag  # noqa: E402
+from hil.experiments.sweep import cells_from_json, height_tag, read_sweep_config  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -43,22 +45,48 @@ def height_label(height: Any) -> str:
     return f"{height:g} m"
 
 
+SWEEP_SUMMARY_FORMAT = "sweep-summary"
+"""``summary.json``: version 1 is stamped, an object with ``rows``; version 0 (before stamps) was a
+bare list of rows. ``config.json`` is read by :func:`hil.experiments.sweep.read_sweep_config`."""
+ROW_KEYS = ("method", "obstacle_height_m", "seed", "trials", "trials_to_criterion", "mistakes_after_100",
+            "success_last_50", "success_rate", "cell")
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_bytes())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: not found (is {path.parent} a sweep folder?)") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+
+
+def read_summary_rows(path: str | Path) -> list[dict[str, Any]]:
+    """A sweep's ``summary.json`` rows: version 1 ``{stamp..., "rows": [...]}``, version 0 a bare list.
+
+    Raises:
+        FileNotFoundError: no such file.
+        InputError: not JSON, an unknown version, or rows of the wrong structure.
+    """
+    path = Path(path)
+    data = _read_json(path)
+    if isinstance(data, list):
+        rows = data  # version 0
+    else:
+        check_stamp(data, SWEEP_SUMMARY_FORMAT, (1,), str(path))
+        rows = data.get("rows")
+        if not isinstance(rows, list):
+            raise InputError(f"{path}: 'rows' is not a list of rows")
+    for k, row in enumerate(rows):
+        if not isinstance(row, dict) or any(key not in row for key in ROW_KEYS):
+            raise InputError(f"{path}: row {k} is not a sweep summary row (it needs {', '.join(ROW_KEYS)})")
+    return rows
+
+
 def load_sweep(out_dir: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """A sweep folder's ``config.json`` and ``summary.json`` rows."""
+    """A sweep folder's ``config.json`` (without its stamp) and ``summary.json`` rows, either version."""
     out = Path(out_dir)
-    loaded = []
-    for name in ("config.json", "summary.json"):
-        path = out / name
-        try:
-            loaded.append(json.loads(path.read_text()))
-        except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: not found (is {out} a sweep folder?)") from None
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: not valid JSON ({exc})") from None
-    config, rows = loaded
-    if not isinstance(rows, list):
-        raise ValueError(f"{out / 'summary.json'}: expected a list of rows")
-    return config, rows
+    return read_sweep_config(out / "config.json"), read_summary_rows(out / "summary.json")
 
 
 def _mean(values: Sequence[float | None]) -> float | None:
@@ -199,7 +227,7 @@ def write_report(out_dir: str | Path) -> dict[str, Any]:
     out = Path(out_dir)
     config, rows = load_sweep(out)
     if not rows:
-        raise ValueError(f"{out / 'summary.json'}: no finished cell to report on")
+        raise InputError(f"{out / 'summary.json'}: no finished cell to report on")
     done = {r["cell"] for r in rows}
     missing = [c.name for c in cells_from_json(config) if c.name not in done]
     table = headline_table(rows)
@@ -209,7 +237,7 @@ def write_report(out_dir: str | Path) -> dict[str, Any]:
     curves: dict[str, dict[str, Any]] = {}
     by_height: dict[Any, dict[str, list[list[bool]]]] = {}
     for r in rows:
-        metrics = json.loads((out / "cells" / r["cell"] / "metrics.json").read_text())
+        metrics = read_metrics(out / "cells" / str(r["cell"]) / "metrics.json", parts=("trials",))
         by_height.setdefault(_key(r["obstacle_height_m"]), {}).setdefault(r["method"], []).append(
             [bool(t["success"]) for t in metrics["trials"]])
     figure_files: list[tuple[str, str]] = []

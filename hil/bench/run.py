@@ -17,6 +17,9 @@ Figures (keys of the JSON):
                       platform's floor), with ratios; where it ran and the UML boot time. Without
                       ``--hil``: only whether it could run.
 No figure here is asserted in a test: these machines are shared and noisy; compare ratios.
+
+The JSON carries the stamp ``format: "bench"``, ``format_version`` :data:`BENCH_VERSION` and
+``project_version`` first (:func:`controller.errors.stamp`).
 """
 
 from __future__ import annotations
@@ -28,10 +31,14 @@ from typing import Any
 
 import can
 
+from controller.errors import stamp
 from controller.supervisor import Phase
 from firmware_sim.plant import RigPlant
 from hil.lockstep.harness import Lockstep, LockstepConfig
 from protocol import BusContract, frame_bits
+
+BENCH_KIND = "bench"
+BENCH_VERSION = 1  # the bench JSON's format version: raise it when a reader of the old one could misread it
 
 
 def _quantiles_us(samples_s: list[float]) -> dict[str, float]:
@@ -150,6 +157,7 @@ def run_bench(seconds: float = 10.0, seed: int = 0, learn_trials: int = 10,
     # last, so the HIL session does not share the machine with the runs above
     hil = (lambda: hil_availability()) if hil_seconds is None else (lambda: run_hil_bench(hil_seconds, seed))
     return {
+        **stamp(BENCH_KIND, BENCH_VERSION),
         "lockstep_rtf": lock["rtf"],
         "bare_physics_rtf": bare["rtf"],
         "lockstep_vs_bare": lock["rtf"] / bare["rtf"],

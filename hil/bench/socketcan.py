@@ -23,6 +23,11 @@ nominal periods (the controller's rule); late per 10,000 = late / periods * 10,0
 
 Each figure is reported beside its floor with ``ratio`` = figure / floor (None when the floor is
 0) and ``excess`` = figure - floor. Like the rest of ``bench``: no threshold is asserted on these.
+
+Inside User-Mode Linux the session writes its figures to a file for the host's side to read
+(``python -m hil.bench.socketcan session --out FILE``): stamped ``format: "bench-hil"``,
+``format_version`` :data:`SESSION_VERSION` (:func:`controller.errors.stamp`), checked by
+:func:`read_session` (another kind or version: one line, no figures).
 """
 
 from __future__ import annotations
@@ -41,6 +46,8 @@ from array import array
 from pathlib import Path
 from typing import Any, Sequence
 
+SESSION_KIND = "bench-hil"
+SESSION_VERSION = 1  # the session file's format version: raise it when a reader of the old one could misread it
 NODES = (0, 1)  # the two axes' node ids (ControllerConfig's defaults)
 FIGURES = ("period_jitter_p99_us", "period_jitter_median_us", "period_jitter_max_us", "late_ticks_per_10k",
            "command_to_feedback_median_us", "command_to_feedback_p99_us")  # keys of ``figures``
@@ -380,12 +387,34 @@ def run_hil_bench(seconds: float = 10.0, seed: int = 0, channel: str = "vcan0", 
         if not out.exists():
             return {"available": False, "ran": False, "where": "uml", "error": f"the session inside User-Mode Linux wrote no "
                     f"figures (exit {done.returncode}): {(done.stdout or '')[-1500:]}", "install": INSTALL}
-        result = json.loads(out.read_text())
+        try:
+            result = read_session(out)
+        except ValueError as exc:  # InputError included: one line, in the hil section
+            return {"available": False, "ran": False, "where": "uml", "error": str(exc), "install": INSTALL}
     finally:
         shutil.rmtree(out_dir, ignore_errors=True)
     result["where"] = "uml"
     result["uml"] = {"boot_to_session_s": result["started_unix"] - t0, "wall_s": wall, "exit_code": done.returncode}
     return result
+
+
+def write_session(path: str | Path, result: dict[str, Any]) -> None:
+    """The session's figures, stamped (:data:`SESSION_KIND`, :data:`SESSION_VERSION`), atomically."""
+    from controller.atomic import write_json_atomic
+    from controller.errors import stamp
+
+    write_json_atomic(path, {**stamp(SESSION_KIND, SESSION_VERSION), **result}, indent=1)
+
+
+def read_session(path: str | Path) -> dict[str, Any]:
+    """The figures :func:`write_session` wrote, without the stamp.
+
+    Raises:
+        InputError: not JSON, another kind of file or another format version (one line).
+    """
+    from controller.errors import read_stamped_json
+
+    return read_stamped_json(path, SESSION_KIND, {SESSION_VERSION})
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -415,11 +444,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif a.cmd == "echo-responder":
         print(json.dumps(echo_responder(a.channel)))
     else:
-        from controller.atomic import write_json_atomic
         from hil.profile import current
 
-        result = session(a.seconds, a.seed, a.channel, current().name)
-        write_json_atomic(a.out, result, indent=1)
+        write_session(a.out, session(a.seconds, a.seed, a.channel, current().name))
     return 0
 
 

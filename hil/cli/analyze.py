@@ -1,4 +1,8 @@
-"""``analyze``: acceptance figures from one or more learn output folders."""
+"""``analyze``: acceptance figures from one or more learn output folders.
+
+A folder without a ``metrics.json``, or with one of the wrong structure or version, is one line
+naming it (exit 3: :func:`hil.analysis.metrics.load_run`); ``--json`` is checked before reading.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +17,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from controller.cli.common import check_output_file
     from hil.analysis.metrics import analyze
 
+    check_output_file(args.json, "--json")
     write_json(args.json, analyze(args.folders))
     return 0

@@ -1,17 +1,22 @@
-"""``bench``: performance figures as JSON, ratios measured side by side."""
+"""``bench``: performance figures as JSON, ratios measured side by side.
+
+``--json`` is checked before anything is measured (exit 3). With ``--hil`` where neither a vcan
+nor User-Mode Linux can be had, the figures without HIL are written and the exit code is 6 (this
+install lacks what ``--hil`` needs).
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from controller.cli.common import positive, write_json
+from controller.cli.common import non_negative, positive, write_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=positive(float), default=10.0, help="simulated seconds per figure")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--learn-trials", type=int, default=10, help="learning trials timed (default 10)")
+    p.add_argument("--seed", type=non_negative(int), default=0, help="seed of the runs timed (default 0)")
+    p.add_argument("--learn-trials", type=positive(int), default=10, help="learning trials timed (default 10)")
     p.add_argument("--json", default="-", help="where to write the figures (default: stdout)")
     p.add_argument("--hil", action="store_true",
                    help="also the HIL figures on a real vcan0 (User-Mode Linux where needed), beside the floor")
@@ -20,16 +25,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from controller.cli.common import check_output_file
+    from controller.errors import EXIT_MISSING
     from hil.bench.run import run_bench
 
+    check_output_file(args.json, "--json")
     result = run_bench(seconds=args.seconds, seed=args.seed, learn_trials=args.learn_trials,
                        hil_seconds=args.hil_seconds if args.hil else None)
     write_json(args.json, result)
     if args.hil:
         h = result["hil"]
         if not h.get("available"):
-            print(f"elegant-stepping bench --hil: {h.get('error')} (install: {h.get('install')})", file=sys.stderr)
-            return 3
+            print(f"elegant-stepping bench: error: --hil: {h.get('error')} (install: {h.get('install')})",
+                  file=sys.stderr)
+            return EXIT_MISSING
         f = h["figures"]
 
         def pair(key: str) -> str:

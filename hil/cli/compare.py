@@ -1,6 +1,7 @@
 """``compare``: are two runs' records the same, field for field (wall-clock figures aside)?
 
-Exit 0 the same, 1 they differ (the first difference is printed), 2 a file is missing or not JSON.
+Exit 0 the same, 1 they differ (the first difference is printed), 3 a file is missing or not JSON
+(the exit code of every input error, :mod:`controller.errors`), 2 a malformed option.
 """
 
 from __future__ import annotations
@@ -18,8 +19,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from controller.cli.common import check_output_file
     from hil.analysis.records import compare, read
 
+    check_output_file(args.json, "--json")
     result = compare(read(args.first), read(args.second))
     if args.json is not None:
         write_json(args.json, result)

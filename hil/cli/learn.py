@@ -1,10 +1,18 @@
-"""``learn``: learning trials: approach an obstacle and step over it, again and again."""
+"""``learn``: learning trials: approach an obstacle and step over it, again and again.
+
+The run folder survives stops (docs/runs.md): each trial is appended to ``DIR/trials.jsonl`` as
+it finishes; the same command again resumes a stopped run, says so and exits 0 for a finished
+one, and refuses a folder of another configuration unless ``--overwrite``. SIGINT and SIGTERM stop
+the run with one line and exit 130; the finished trials are kept.
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
 
-from controller.cli.common import positive
+from controller.cli.common import non_negative, positive
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -13,19 +21,41 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                    help=f"what drives the stride: a name of the method registry (default {DEFAULT_METHOD}: "
                         "the paper's learner)")
-    p.add_argument("--trials", type=int, default=150, help="number of approaches (default 150)")
-    p.add_argument("--seed", type=int, default=0, help="seed of start distances and sensor noise (default 0)")
-    p.add_argument("--out", required=True, help="output folder for metrics.json and weights.npz")
+    p.add_argument("--trials", type=positive(int), default=150, help="number of approaches (default 150)")
+    p.add_argument("--seed", type=non_negative(int), default=0,
+                   help="seed of start distances and sensor noise (default 0)")
+    p.add_argument("--out", required=True,
+                   help="run folder: trials.jsonl, weights.npz, metrics.json, figures/ (a stopped run in it resumes)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="clear a learn run of another configuration from --out first (never other files)")
     p.add_argument("--obstacle-height-m", type=positive(float), default=0.08, help="obstacle height [m] (0.08)")
     p.add_argument("--obstacle-depth-m", type=positive(float), default=0.10, help="obstacle depth [m] (0.10)")
-    p.add_argument("--range-noise-m", type=float, default=0.02, help="range sensor noise, 1 sigma [m] (0.02)")
+    p.add_argument("--range-noise-m", type=non_negative(float), default=0.02,
+                   help="range sensor noise, 1 sigma [m] (0.02)")
     p.add_argument("--no-learning", action="store_true", help="freeze the weights at zero (the baseline)")
     p.add_argument("--no-figures", action="store_true", help="skip DIR/figures/")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def describe(config, summary: dict) -> str:
+    """One line of a run's outcome (without where it was written)."""
+    late = "n/a" if summary["mistakes_101_150"] is None else summary["mistakes_101_150"]
+    early = "n/a" if summary["success_21_40"] is None else f"{summary['success_21_40']:.0%}"
+    return (f"{config.method}{'' if config.learning else ' (no learning)'}, seed {config.seed}: success "
+            f"{summary['success_rate']:.0%} over {summary['trials']} trials, {early} in trials 21-40, {late} "
+            f"mistakes in 101-150")
+
+
 def run(args: argparse.Namespace) -> int:
-    from hil.experiments.learn import LearnConfig, run_learning
+    from controller.errors import EXIT_INTERRUPTED
+    from hil.experiments.journal import prepare_folder
+
+    prepare_folder(args.out, "--out", create=False)  # before anything else (no simulation imported yet)
+    from hil.experiments.learn import LearnConfig, RunStopped, learn_into
 
     config = LearnConfig(
         trials=args.trials,
@@ -37,14 +67,23 @@ def run(args: argparse.Namespace) -> int:
         method=args.method,
         trace_trials=(0, -1),
     )
-    metrics = run_learning(config, out_dir=args.out, progress=not args.quiet, figures=not args.no_figures)
-    s = metrics["summary"]
-    late = "n/a" if s["mistakes_101_150"] is None else s["mistakes_101_150"]
-    early = "n/a" if s["success_21_40"] is None else f"{s['success_21_40']:.0%}"
-    print(
-        f"{config.method}{'' if config.learning else ' (no learning)'}, seed {config.seed}: success {s['success_rate']:.0%} "
-        f"over {s['trials']} trials, {early} in trials 21-40, {late} mistakes in 101-150; "
-        f"{s['sim_s']:.0f} s simulated in {s['wall_s']:.0f} s ({s['trials_per_minute']:.0f} trials/min); "
-        f"wrote {args.out}/metrics.json and weights.npz"
-    )
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM stops like SIGINT: what finished is kept
+    try:
+        outcome = learn_into(config, args.out, progress=not args.quiet, figures=not args.no_figures,
+                             overwrite=args.overwrite)
+    except RunStopped as stop:
+        print(f"elegant-stepping learn: stopped after {stop.recorded} of {stop.total} trials; "
+              f"run the same command again to resume", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    s = outcome.metrics["summary"]
+    if outcome.status == "finished":
+        print(f"{args.out} already holds this finished run ({describe(config, s)}); nothing to run "
+              f"(--overwrite runs it again)")
+        return 0
+    resumed = f"resumed after {outcome.kept} kept trials (re-run and checked); " if outcome.status == "resumed" else ""
+    print(f"{describe(config, s)}; {resumed}{s['sim_s']:.0f} s simulated in {s['wall_s']:.0f} s "
+          f"({s['trials_per_minute']:.0f} trials/min); wrote {args.out}/metrics.json"
+          f"{'' if outcome.metrics.get('weights_file') is None else ' and weights.npz'}")
     return 0

@@ -3,7 +3,8 @@
 :mod:`hil.experiments.methods` is the method registry, the only place a method is added
 (``paper``, ``context``, ``none``, ``oracle``, ``rl``); :mod:`hil.experiments.learn` runs learning
 trials with one of them; :mod:`hil.experiments.sweep` runs seeds x heights x methods on a process
-pool or Dask; :mod:`hil.experiments.walk` walks on flat ground; :mod:`hil.experiments.oracle` is the
+pool or Dask; :mod:`hil.experiments.journal` keeps a run's trials on disk as they finish (the
+append-only record a stopped run resumes from, the folder lock); :mod:`hil.experiments.walk` walks on flat ground; :mod:`hil.experiments.oracle` is the
 planner given the true distance.
 
 May import: ``controller``, ``firmware_sim``, ``protocol``, :mod:`hil.lockstep`,

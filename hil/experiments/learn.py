@@ -6,13 +6,23 @@ it only through the range sensor), walks until the hip is well past it, and remo
 trial's obstacle comes into view at once. Success is ground truth from the plant: no contact
 between any leg link and the obstacle. What the controller felt (its reflexes), decided (its
 gated burst changes) and learned (its weights) is read from the controller's own records.
+
+A run into a folder survives being stopped (:func:`learn_into`, docs/runs.md): every finished
+trial is appended to ``trials.jsonl`` at once, the same command again resumes an unfinished run by
+re-running its kept trials deterministically (each checked against its record) and going on, a
+finished run is not run again, and a folder of another configuration is refused unless
+``overwrite``. PyBullet's in-memory save and restore is bit-exact for this plant over a trial
+boundary (tests/hil/experiments/test_learn_resume.py), but a checkpoint would also have to hold
+the drivers, the controller, the bus and every random generator: the re-run is what resumes.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
+import shutil
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -20,15 +30,19 @@ from typing import Any, Callable
 
 import numpy as np
 
-from controller.atomic import write_json_atomic
+from controller.atomic import fsync_dir, write_json_atomic
 from controller.config import ControllerConfig
+from controller.errors import InputError, stamp
 from controller.stepping.context import ContextPremotor
 from controller.stepping.learner import AdaptivePremotor
 from controller.supervisor import Phase
-from controller.stepping.weights import save_weights
+from controller.stepping.weights import WeightsError, read_weights, save_weights
 from firmware_sim.leg import LegHardware
 from firmware_sim.plant import Obstacle
-from hil.analysis.metrics import footfall_std_by_step, last_window, mistakes_101_150, window_success
+from hil.analysis.metrics import (METRICS_FILE, METRICS_FORMAT, footfall_std_by_step, last_window, mistakes_101_150,
+                                  read_metrics, window_success)
+from hil.experiments.journal import (LOCK_FILE, TRIALS_FILE, FolderLock, Journal, JournalWriter, prepare_folder,
+                                     read_journal)
 from hil.lockstep.groundtruth import FootfallTracker
 from hil.experiments.methods import DEFAULT_METHOD, get as get_method
 from hil.lockstep.harness import Lockstep, LockstepConfig
@@ -265,32 +279,273 @@ def summarize(trials: list[dict[str, Any]], wall_s: float, sim_s: float) -> dict
     }
 
 
+def _weights_of(premotor) -> np.ndarray | None:
+    """The learned weights of a premotor that has them ((n_cells,) or (n_contexts, n_cells)), else None."""
+    return premotor.weights if isinstance(premotor, (AdaptivePremotor, ContextPremotor)) else None
+
+
 def run_learning(config: LearnConfig, out_dir: str | Path | None = None, progress: bool = False,
-                 figures: bool = False) -> dict[str, Any]:
-    """Run; write ``metrics.json``, ``weights.npz`` (and with ``figures``, ``figures/``) into
-    ``out_dir`` if given; return the metrics."""
+                 figures: bool = False, overwrite: bool = False) -> dict[str, Any]:
+    """Run; with ``out_dir``, into that run folder (:func:`learn_into`: each trial written as it
+    finishes, resumed where a stopped run left off); return the metrics."""
+    if out_dir is not None:
+        return learn_into(config, out_dir, progress=progress, figures=figures, overwrite=overwrite).metrics
     wall0 = time.perf_counter()
     run = LearningRun(config)
     try:
         trials = run.run(progress=progress)
         sim_s = run.ls.t_s
-        premotor = run.premotor
     finally:
         run.close()
-    metrics = {
-        "config": dataclasses.asdict(config),
-        "trials": trials,
-        "summary": summarize(trials, time.perf_counter() - wall0, sim_s),
-    }
-    if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(out / "metrics.json", metrics, indent=1)
-        if isinstance(premotor, (AdaptivePremotor, ContextPremotor)):  # (n_cells,) or (n_contexts, n_cells)
-            save_weights(out / "weights.npz", premotor.weights, config.controller.encoder.cell_width_m)
-        if figures:
-            write_figures(out, metrics, premotor)
-    return metrics
+    return {"config": dataclasses.asdict(config), "trials": trials,
+            "summary": summarize(trials, time.perf_counter() - wall0, sim_s)}
+
+
+# ---- the run folder ----------------------------------------------------------------------------------------------
+
+METRICS_VERSION = 1
+WEIGHTS_FILE = "weights.npz"
+CHECKPOINT_EVERY = 10
+"""The learned weights are saved every this many trials (and at the end)."""
+WEIGHTS_METHODS_V0 = frozenset({"paper", "learner", "none", "context"})
+"""The methods whose runs wrote ``weights.npz`` before ``metrics.json`` said so (version 0 files)."""
+
+
+def is_run_file(name: str) -> bool:
+    """Whether a name in a folder is one a learn run writes (what ``--overwrite`` may remove)."""
+    return (name in (LOCK_FILE, TRIALS_FILE, METRICS_FILE, WEIGHTS_FILE, "figures")
+            or name.startswith(WEIGHTS_FILE + ".")  # .prev, .prev2, temporaries, .incompatible-*
+            or (name.startswith((f".{METRICS_FILE}.", f".{TRIALS_FILE}.")) and name.endswith(".tmp")))
+
+
+def config_difference(have: Any, want: Any, where: str = "") -> str | None:
+    """The first key where the configuration ``have`` (read from a folder) differs from ``want``
+    (both as JSON gives them), as ``key: X in the folder, Y asked``; None if they are equal."""
+    if isinstance(have, dict) and isinstance(want, dict):
+        for key in [*want, *(k for k in have if k not in want)]:
+            name = f"{where}.{key}" if where else str(key)
+            if key not in have:
+                return f"{name}: absent in the folder, {want[key]!r} asked"
+            if key not in want:
+                return f"{name}: {have[key]!r} in the folder, absent in this version's configuration"
+            found = config_difference(have[key], want[key], name)
+            if found:
+                return found
+        return None
+    if json.dumps(have) == json.dumps(want):
+        return None
+    return f"{where or 'config'}: {have!r} in the folder, {want!r} asked"
+
+
+def finished_problem(out: Path, metrics: dict[str, Any], trials: int) -> str | None:
+    """Why a run folder whose ``metrics.json`` (``metrics``, stamp and structure already checked)
+    names the right configuration is not a finished run of ``trials`` trials; None if it is.
+
+    A finished run has every trial with its success flag and, if it learns weights (version 1:
+    ``metrics.json``'s ``weights_file``; version 0: its method), a ``weights.npz`` that loads
+    with its checksum verified (:func:`controller.stepping.weights.read_weights`)."""
+    if len(metrics["trials"]) != trials:
+        return f"{out / METRICS_FILE} holds {len(metrics['trials'])} trials, not {trials}"
+    if "format" in metrics:
+        weights = metrics.get("weights_file")
+    else:
+        weights = WEIGHTS_FILE if metrics["config"].get("method", "paper") in WEIGHTS_METHODS_V0 else None
+    if weights is not None:
+        try:
+            read_weights(out / str(weights))
+        except WeightsError as exc:
+            return f"its weights cannot be used: {exc}"
+    return None
+
+
+@dataclass(frozen=True)
+class FolderState:
+    """What a run folder holds for a configuration: ``kind`` ``"new"`` (nothing of a run),
+    ``"finished"`` (``metrics``: a verified finished run of it) or ``"resume"`` (``journal``: an
+    unfinished run of it)."""
+
+    kind: str
+    metrics: dict[str, Any] | None = None
+    journal: Journal | None = None
+
+
+def folder_state(out: Path, config: LearnConfig, what: str = "--out", overwrite: bool = False) -> FolderState:
+    """What ``out`` (an existing folder) holds for ``config``; with ``overwrite``, a learn run's
+    folder is cleared first (and is then ``"new"``).
+
+    Same configuration means the same ``dataclasses.asdict(config)`` after a JSON round trip,
+    every key, ``trials`` included (the last trial's trace, ``trace_trials`` -1, depends on it).
+
+    Raises:
+        InputError: the folder holds a run of another configuration, a damaged or unverifiable
+            run, or files that are not a learn run's (never cleared, not even with ``overwrite``);
+            the message names ``what``, the folder and the first differing key.
+    """
+    names = sorted(p.name for p in out.iterdir())
+    if not [n for n in names if n != LOCK_FILE]:
+        return FolderState("new")
+    foreign = [n for n in names if not is_run_file(n)]
+    if TRIALS_FILE not in names and METRICS_FILE not in names:
+        shown = [n for n in names if n != LOCK_FILE]
+        raise InputError(f"{what} {out}: holds files that are not a learn run's ({', '.join(shown[:3])}"
+                         f"{', ...' if len(shown) > 3 else ''}); give an empty or new folder"
+                         + ("; --overwrite clears only a learn run's folder" if overwrite else ""))
+    if overwrite:
+        if foreign:
+            raise InputError(f"{what} {out}: also holds {', '.join(foreign[:3])}, which a learn run does not write; "
+                             f"not clearing it: move it away or give another folder")
+        for name in names:
+            if name == LOCK_FILE:
+                continue  # we hold it
+            path = out / name
+            shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+        fsync_dir(out)
+        log.info("%s: cleared the learn run in %s (--overwrite)", what, out)
+        return FolderState("new")
+    want = json.loads(json.dumps(dataclasses.asdict(config)))
+    again = "use another folder, or --overwrite to replace it"
+    if METRICS_FILE in names:
+        metrics = read_metrics(out / METRICS_FILE)
+        diff = config_difference(metrics["config"], want)
+        if diff:
+            raise InputError(f"{what} {out}: holds a finished run of another configuration ({diff}); {again}")
+        problem = finished_problem(out, metrics, config.trials)
+        if problem:
+            raise InputError(f"{what} {out}: holds a run of this configuration that does not verify ({problem}); "
+                             f"{again}")
+        return FolderState("finished", metrics=metrics)
+    journal = read_journal(out / TRIALS_FILE)
+    diff = config_difference(journal.config, want)
+    if diff:
+        raise InputError(f"{what} {out}: holds an unfinished run of another configuration ({diff}); {again}")
+    if len(journal.records) > config.trials:
+        raise InputError(f"{out / TRIALS_FILE}: holds {len(journal.records)} trials, more than its configuration's "
+                         f"{config.trials}; {again}")
+    return FolderState("resume", journal=journal)
+
+
+class RunStopped(KeyboardInterrupt):
+    """A run stopped by SIGINT (or SIGTERM, where the command line maps it): ``recorded`` of
+    ``total`` trials are kept in ``folder``'s ``trials.jsonl``."""
+
+    def __init__(self, recorded: int, total: int, folder: Path) -> None:
+        super().__init__(f"stopped after {recorded} of {total} trials")
+        self.recorded, self.total, self.folder = recorded, total, folder
+
+
+class NotReproduced(InputError):
+    """A resumed run's re-run of a kept trial gave another record (exit 3)."""
+
+
+@dataclass(frozen=True)
+class LearnOutcome:
+    """What :func:`learn_into` did: ``status`` ``"ran"`` (a new run), ``"resumed"`` (``kept``
+    trials were re-run, checked and continued) or ``"finished"`` (the folder already held this
+    run: nothing ran); ``metrics`` as in ``metrics.json``."""
+
+    metrics: dict[str, Any]
+    status: str
+    kept: int = 0
+
+
+def _check_rerun(trial: dict[str, Any], kept: dict[str, Any], index: int, path: Path) -> None:
+    """The re-run's record of trial ``index`` must be the kept one, bit for bit (as JSON)."""
+    if json.dumps(trial) == json.dumps(kept):
+        return
+    from hil.analysis.records import first_difference
+
+    diff = first_difference(kept, json.loads(json.dumps(trial)), f"trial {index}") or f"trial {index}"
+    raise NotReproduced(f"{path}: the run does not reproduce here: the re-run of kept trial {index} differs "
+                        f"({diff}: kept vs re-run); its records were written by another version or machine; "
+                        f"rerun with --overwrite to start over")
+
+
+def learn_into(config: LearnConfig, out_dir: str | Path, *, progress: bool = False, figures: bool = False,
+               overwrite: bool = False, what: str = "--out") -> LearnOutcome:
+    """Run ``config`` into the run folder ``out_dir``, surviving stops.
+
+    The folder is checked and locked before PyBullet starts (:func:`hil.experiments.journal.prepare_folder`,
+    :class:`~hil.experiments.journal.FolderLock`; a second writer is refused). Then, by what it
+    holds (:func:`folder_state`): nothing, a new run; a finished run of ``config``, nothing runs;
+    an unfinished run of ``config``, it resumes: the kept trials are re-run deterministically from
+    the start, each checked against its record (:class:`NotReproduced` if one differs), and the
+    run continues from there. Each new trial is appended to ``trials.jsonl`` as it finishes; the
+    weights are saved every :data:`CHECKPOINT_EVERY` trials and at the end (atomically, one
+    generation: the trial record, not the weights, is what a resume starts from). At the end:
+    ``weights.npz``, ``figures/`` (with ``figures``), then ``metrics.json`` last (its presence
+    marks a finished run).
+
+    Raises:
+        InputError: the folder (see :func:`folder_state`), a damaged trial record, a kept trial
+            that does not reproduce.
+        FolderBusy: another run writes the folder.
+        RunStopped: SIGINT (a ``KeyboardInterrupt``) during the run; the finished trials are kept.
+    """
+    out = prepare_folder(out_dir, what)
+    with FolderLock(out, f"{what} {out}"):
+        state = folder_state(out, config, what, overwrite)
+        if state.kind == "finished":
+            return LearnOutcome(state.metrics, "finished", len(state.metrics["trials"]))
+        kept = state.journal.records if state.journal is not None else []
+        if kept:
+            log.info("%s: resuming after %d of %d trials (re-running them first)", out, len(kept), config.trials)
+        wall0 = time.perf_counter()
+        run = writer = bar = None
+        recorded = len(kept)
+        try:
+            if state.journal is not None:
+                writer = JournalWriter(out / TRIALS_FILE, keep_bytes=state.journal.good_bytes)
+            else:
+                writer = JournalWriter.create(out / TRIALS_FILE, dataclasses.asdict(config))
+            run = LearningRun(config)
+            run.bring_up()
+            if progress:
+                from tqdm import tqdm
+
+                desc = ("learn" if config.learning else "no-learning") + (f" (re-run {len(kept)})" if kept else "")
+                bar = tqdm(total=config.trials, unit="trial", desc=desc)
+            for i in range(config.trials):
+                trial = run.trial(i)
+                run.trials.append(trial)
+                if i < len(kept):
+                    _check_rerun(trial, kept[i], i, out / TRIALS_FILE)
+                else:
+                    writer.append(trial)
+                    recorded = len(kept) + writer.appended
+                    weights = _weights_of(run.premotor)
+                    if weights is not None and recorded % CHECKPOINT_EVERY == 0 and recorded < config.trials:
+                        save_weights(out / WEIGHTS_FILE, weights, config.controller.encoder.cell_width_m, generations=1)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(success=f"{sum(t['success'] for t in run.trials) / (i + 1):.0%}")
+            sim_s = run.ls.t_s
+        except KeyboardInterrupt:  # a signal held during an append arrives once the record is durable
+            raise RunStopped(len(kept) + (writer.appended if writer is not None else 0), config.trials, out) from None
+        finally:
+            if bar is not None:
+                bar.close()
+            if writer is not None:
+                writer.close()
+            if run is not None:
+                run.close()
+        trials = run.trials
+        weights = _weights_of(run.premotor)
+        metrics = {
+            **stamp(METRICS_FORMAT, METRICS_VERSION),
+            "config": dataclasses.asdict(config),
+            "trials": trials,
+            "summary": summarize(trials, time.perf_counter() - wall0, sim_s),
+            "weights_file": None if weights is None else WEIGHTS_FILE,
+        }
+        try:
+            if weights is not None:
+                save_weights(out / WEIGHTS_FILE, weights, config.controller.encoder.cell_width_m, generations=1)
+            if figures:
+                write_figures(out, metrics, run.premotor)
+            write_json_atomic(out / METRICS_FILE, metrics, indent=1)
+        except KeyboardInterrupt:  # every trial is recorded: the next run re-runs them and writes the rest
+            raise RunStopped(recorded, config.trials, out) from None
+        return LearnOutcome(metrics, "resumed" if kept else "ran", len(kept))
 
 
 def write_figures(out: Path, metrics: dict[str, Any], premotor) -> None:
@@ -316,7 +571,11 @@ def learn_config(method: str, *, seed: int, trials: int, obstacle_height_m: floa
 
 
 def run_method(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],
-               out_dir: str | Path | None = None, progress: bool = False, **overrides: Any) -> dict[str, Any]:
-    """Run one sweep cell; the metrics have the format of ``elegant-stepping learn``."""
+               out_dir: str | Path | None = None, progress: bool = False, what: str = "--out",
+               **overrides: Any) -> dict[str, Any]:
+    """Run one sweep cell; the metrics have the format of ``elegant-stepping learn`` (with
+    ``out_dir``, the folder is a learn run folder: :func:`learn_into`, never ``overwrite``)."""
     config = learn_config(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m, **overrides)
-    return run_learning(config, out_dir=out_dir, progress=progress)
+    if out_dir is None:
+        return run_learning(config, progress=progress)
+    return learn_into(config, out_dir, progress=progress, what=what).metrics

@@ -1,17 +1,39 @@
 """The sweep engine: every (method, obstacle height, seed) cell on a process pool or a Dask cluster.
 
-A cell is one learning run, :func:`hil.experiments.learn.run_method`, written to ``DIR/cells/<cell>/``
-(``metrics.json``, ``weights.npz``). The pool and the Dask path submit the same top-level,
-picklable function, :func:`run_cell`. A sweep is resumable: a cell whose ``metrics.json`` parses and
-has the cell's configuration is not run again; a corrupt or mismatched one is run again (with a
-warning). A cell that raises is recorded and the others are kept.
+A cell is one learning run, :func:`hil.experiments.learn.run_method`, written to ``DIR/cells/<cell>/``,
+a learn run folder (``trials.jsonl``, ``weights.npz``, ``metrics.json``: :func:`hil.experiments.learn.learn_into`).
+The pool and the Dask path submit the same top-level, picklable function, :func:`run_cell`. A cell
+that raises is recorded and the others are kept.
+
+**Nothing is lost, nothing is deleted.** ``DIR/config.json`` holds the sweep's configuration; a
+sweep into a folder whose configuration differs (any key, ``trials`` included) is refused
+(:class:`controller.errors.InputError`, naming the first differing key) and nothing is touched;
+``--overwrite`` (``overwrite=True``) first clears the sweep's own files (:data:`SWEEP_FILES`), and
+only in a folder that is a sweep's. A cell counts as done only when its ``metrics.json`` verifies
+(stamp, the whole learn configuration, the trial count, a success flag per trial) and, for a method
+that learns weights, its ``weights.npz`` loads with its checksum verified; a cell with only a
+``trials.jsonl`` resumes through learn's resume; a cell that holds something else is *refused*
+(reported, its files kept), never run over. One writer per folder: the sweep holds ``DIR/.lock``
+while it runs (a second sweep into ``DIR`` is refused), each cell's run holds its own folder's
+lock (a cell another process is writing is reported ``busy``, not run twice).
+
+**Workers die with their parent.** Each pool worker asks the kernel for SIGKILL when its parent
+dies (``prctl(PR_SET_PDEATHSIG)``, Linux) and, as a fallback, watches its parent id from a daemon
+thread; it ignores SIGINT (the parent decides), and when the parent stops on an exception
+(SIGINT, or SIGTERM mapped to it by the command line) it terminates its workers before returning.
+A killed worker leaves its cell's finished trials in ``trials.jsonl``: the next sweep resumes it.
+(The Dask path leaves its workers to Dask.)
 
 The sweep folder ``DIR``:
 
-- ``config.json``: the sweep's configuration (methods, heights, seeds, trials);
-- ``summary.json``: one row per finished cell (:func:`summary_row`), sorted by method (in the
-  given order), height, seed; no wall-clock time in it, so it does not depend on the executor;
-- ``timing.json``: wall time per cell and in total, which executor ran them, and the errors.
+- ``config.json``: ``{"format": "sweep-config", "format_version": 1, ...}`` and the sweep's
+  configuration (methods, heights, mixed_heights, seeds, trials);
+- ``summary.json``: ``{"format": "sweep-summary", ..., "rows": [...]}``, one row per finished cell
+  (:func:`summary_row`), sorted by method (in the given order), height, seed; no wall-clock time
+  in it, so it does not depend on the executor (version 0, before stamps, was the bare list);
+- ``timing.json``: stamped ``sweep-timing``: wall time per cell and in total, which executor ran
+  them, each cell's status (``ran``, ``resumed`` = finished before, ``failed``, ``refused``,
+  ``busy``) and the errors.
 
 The figures and ``report.md`` are :mod:`hil.analysis.report`'s. With a remote Dask cluster, ``DIR`` must be
 on a filesystem that the workers share with the caller: the cells write their files themselves.
@@ -19,12 +41,17 @@ on a filesystem that the workers share with the caller: the cells write their fi
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
 import multiprocessing
 import os
 import re
+import shutil
+import signal
+import sys
+import threading
 import time
 import traceback
 import uuid
@@ -33,14 +60,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-from controller.atomic import write_json_atomic
+from controller.atomic import fsync_dir, write_json_atomic
+from controller.errors import InputError, check_stamp, stamp
 from hil.analysis.metrics import success_last
 from hil.analysis.stats import trials_to_criterion
+from hil.experiments.journal import FolderBusy, FolderLock, is_locked, prepare_folder
 from hil.experiments.methods import DEFAULT_SWEEP_METHODS, METHODS
 
 log = logging.getLogger(__name__)
 
 DEFAULT_METHODS = DEFAULT_SWEEP_METHODS
+SWEEP_VERSION = 1
+SWEEP_FILES = ("cells", "config.json", "summary.json", "timing.json", "report.md", "figures")
+"""What a sweep writes in its folder, and all that ``--overwrite`` removes."""
 MIN_HEIGHT_M, MAX_HEIGHT_M = 0.03, 0.20  # as hil.experiments.learn.LearnConfig: the sensor sees above 3 cm
 
 Height = float | tuple[float, ...]
@@ -165,6 +197,8 @@ class SweepConfig:
     dask: str | None = None
 
     def __post_init__(self) -> None:
+        if not str(self.out_dir).strip():  # Path("") would be the current folder
+            raise InputError("--out: an empty path; give a folder (e.g. --out sweeps/heights)")
         object.__setattr__(self, "out_dir", Path(self.out_dir))
         for name in ("seeds", "obstacle_heights_m", "methods"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
@@ -207,7 +241,35 @@ def cells_from_json(config: dict[str, Any]) -> list[Cell]:
         return grid(config["methods"], config["obstacle_heights_m"], config["mixed_heights"], config["seeds"],
                     config["trials"])
     except (KeyError, TypeError) as exc:
-        raise ValueError(f"config.json: not a sweep configuration ({type(exc).__name__}: {exc})") from None
+        raise InputError(f"config.json: not a sweep configuration ({type(exc).__name__}: {exc})") from None
+
+
+CONFIG_KEYS = ("methods", "obstacle_heights_m", "mixed_heights", "seeds", "trials")
+"""The keys of a sweep's ``config.json`` (besides its stamp): what the results depend on."""
+
+
+def read_sweep_config(path: str | Path) -> dict[str, Any]:
+    """A sweep's ``config.json`` (version 1 stamped ``sweep-config``, or version 0 of before
+    stamps) without its stamp: the keys of :data:`CONFIG_KEYS`.
+
+    Raises:
+        FileNotFoundError: no such file.
+        InputError: not JSON, another kind of file, an unknown version, or a key missing.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_bytes())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: not found (is {path.parent} a sweep folder?)") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    check_stamp(data, "sweep-config", (0, SWEEP_VERSION), str(path))
+    missing = [k for k in CONFIG_KEYS if k not in data]
+    if missing:
+        raise InputError(f"{path}: not a sweep configuration ({', '.join(repr(k) for k in missing)} missing)")
+    if not all(isinstance(data[k], list) for k in ("methods", "obstacle_heights_m", "seeds")):
+        raise InputError(f"{path}: not a sweep configuration (methods, obstacle_heights_m and seeds must be lists)")
+    return {k: data[k] for k in CONFIG_KEYS}
 
 
 def summary_row(cell: Cell, success: Sequence[bool]) -> dict[str, Any]:
@@ -235,31 +297,50 @@ def summary_row(cell: Cell, success: Sequence[bool]) -> dict[str, Any]:
     }
 
 
+def cell_config(cell: Cell):
+    """The cell's learn configuration (:func:`hil.experiments.learn.learn_config`)."""
+    from hil.experiments.learn import learn_config
+
+    return learn_config(cell.method, seed=cell.seed, trials=cell.trials, obstacle_height_m=cell.obstacle_height_m)
+
+
 def run_cell(method: str, seed: int, trials: int, obstacle_height_m: Height, out_dir: str) -> dict[str, Any]:
     """Run one cell into ``out_dir`` (the task that the pool and Dask run): returns its wall time
-    [s] and, if it raised, the error (the exception is caught here so that it always pickles)."""
+    [s], how many trials were kept from a stopped run (``kept``), whether the folder was ``busy``
+    and, if it raised, the error (the exception is caught here so that it always pickles)."""
     t0 = time.perf_counter()
+    busy, kept = False, 0
     try:
-        from hil.experiments.learn import run_method
+        from hil.experiments.learn import learn_config, learn_into
 
-        run_method(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m, out_dir=out_dir)
+        config = learn_config(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m)
+        kept = learn_into(config, out_dir, what=f"cell {Path(out_dir).name}").kept
         error = tb = None
+    except FolderBusy as exc:
+        busy, error, tb = True, str(exc), None
     except Exception as exc:  # noqa: BLE001 - a failed cell is recorded, the sweep goes on
         error, tb = f"{type(exc).__name__}: {exc}", traceback.format_exc()
-    return {"wall_s": time.perf_counter() - t0, "error": error, "traceback": tb}
+    return {"wall_s": time.perf_counter() - t0, "error": error, "traceback": tb, "busy": busy, "kept": kept}
 
 
 def read_cell(cell: Cell, out_dir: Path) -> tuple[dict[str, Any] | None, str | None]:
-    """A finished cell's metrics, or None and why it is not finished (None if it never ran)."""
-    path = cell.folder(out_dir) / "metrics.json"
-    if not path.is_file():
+    """A finished cell's verified metrics (:func:`hil.experiments.learn.folder_state`: the stamp,
+    the whole configuration, every trial's success flag, the weights' checksum), or None and why
+    its folder cannot be resumed either (None: it never ran, or it holds an unfinished run of the
+    cell, which :func:`run_cell` resumes)."""
+    from hil.experiments.learn import folder_state
+
+    folder = cell.folder(out_dir)
+    if not folder.is_dir():
         return None, None
     try:
-        metrics = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        return None, f"{path} is corrupt ({exc})"
-    reason = cell.mismatch(metrics)
-    return (None, f"{path} does not match the cell: {reason}") if reason else (metrics, None)
+        state = folder_state(folder, cell_config(cell), what=f"cell {cell.name}")
+    except InputError as exc:
+        return None, str(exc)
+    if state.kind != "finished":
+        return None, None
+    reason = cell.mismatch(state.metrics)
+    return (None, f"{folder / 'metrics.json'} does not match the cell: {reason}") if reason else (state.metrics, None)
 
 
 def _task(cell: Cell, out_dir: Path) -> tuple:
@@ -274,15 +355,50 @@ def _outcome(get: Callable[[], dict[str, Any]]) -> dict[str, Any]:
         return {"wall_s": None, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
 
 
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+PARENT_POLL_S = 0.5
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """A pool worker's initializer: SIGKILL when the parent dies (prctl, Linux), and a daemon
+    thread that exits the worker if its parent id changes (the fallback, and the check for a
+    parent that died before the prctl); SIGINT is ignored (the parent stops its workers)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # no prctl here: the thread below still watches
+            pass
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
 def _on_pool(todo: list[Cell], out_dir: Path, workers: int) -> Iterator[tuple[Cell, dict[str, Any]]]:
     # spawn, not fork: the parent may hold threads (tqdm, logging) that a fork would copy mid-state
     context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context)
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=context,
+                               initializer=_die_with_parent, initargs=(os.getpid(),))
+    finished = False
     try:
         futures = {pool.submit(run_cell, *_task(c, out_dir)): c for c in todo}
         for future in as_completed(futures):
             yield futures[future], _outcome(future.result)
+        finished = True
     finally:
+        if not finished:  # stopped (SIGINT, SIGTERM, an error): stop the workers too, do not wait for their cells
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                with contextlib.suppress(OSError, ValueError, AttributeError):
+                    process.terminate()
         pool.shutdown(wait=True, cancel_futures=True)
 
 
@@ -314,69 +430,148 @@ def _on_dask(todo: list[Cell], out_dir: Path, address: str, workers: int) -> Ite
             cluster.close()
 
 
-def run_sweep(config: SweepConfig, progress: bool = True) -> dict[str, Any]:
+class SweepStopped(KeyboardInterrupt):
+    """A sweep stopped by SIGINT (or SIGTERM, where the command line maps it): ``finished`` of
+    ``total`` cells are done; the running cells keep their finished trials."""
+
+    def __init__(self, finished: int, total: int) -> None:
+        super().__init__(f"stopped with {finished} of {total} cells finished")
+        self.finished, self.total = finished, total
+
+
+def check_folder(out: Path, config: SweepConfig, overwrite: bool = False, shown: str | Path | None = None) -> None:
+    """Refuse a sweep folder that holds another sweep (or, with ``overwrite``, clear its own files).
+
+    Raises:
+        InputError: ``config.json`` names another configuration (the first differing key; nothing
+            is deleted), is damaged, or is missing beside a ``cells/`` folder; with ``overwrite``,
+            also a cell that another process is writing.
+    """
+    from hil.experiments.learn import config_difference
+
+    out_shown = out if shown is None else shown  # the folder as the person gave it
+    path = out / "config.json"
+    if not path.exists():
+        stray = [n for n in ("cells", "summary.json") if (out / n).exists()]
+        if stray and overwrite:  # without --overwrite nothing is deleted: each cell is checked on its own
+            raise InputError(f"--out {out_shown}: holds {', '.join(stray)} but no config.json: not a sweep's folder, "
+                             f"so --overwrite does not clear it; move it away or give another --out")
+        return
+    have = read_sweep_config(path)
+    if overwrite:
+        cells = out / "cells"
+        busy = [p.name for p in (sorted(cells.iterdir()) if cells.is_dir() else []) if p.is_dir() and is_locked(p)]
+        if busy:
+            raise InputError(f"--out {out_shown}: cell {busy[0]} is being written by another process; "
+                             f"not clearing the sweep")
+        for name in SWEEP_FILES:
+            target = out / name
+            if target.is_dir() and not target.is_symlink():
+                shutil.rmtree(target)
+            elif target.exists() or target.is_symlink():
+                target.unlink()
+        fsync_dir(out)
+        log.info("cleared the sweep in %s (--overwrite)", out)
+        return
+    diff = config_difference(have, config.to_json())
+    if diff:
+        raise InputError(f"--out {out_shown}: holds a sweep of another configuration ({diff}); nothing was deleted: "
+                         f"use another --out, or --overwrite to clear this sweep's files and start over")
+
+
+def run_sweep(config: SweepConfig, progress: bool = True, overwrite: bool = False) -> dict[str, Any]:
     """Run the sweep's unfinished cells; write ``config.json``, ``summary.json`` and ``timing.json``.
 
-    Returns ``{"cells", "ran", "resumed", "failed": [cell names], "rows"}``.
+    The folder is checked (:func:`check_folder`) and locked before any cell runs.
+
+    Returns ``{"cells", "ran", "resumed", "failed", "refused", "busy": [cell names], "rows"}``
+    (``resumed``: cells finished before; ``refused``: cells whose folder holds something that is
+    not this cell's run, kept as it is; ``busy``: cells another process is writing).
+
+    Raises:
+        InputError: the folder (:func:`check_folder`, :func:`hil.experiments.journal.prepare_folder`).
+        FolderBusy: another sweep is running in the folder.
+        SweepStopped: SIGINT during the run (the workers are stopped).
     """
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     wall0 = time.perf_counter()
-    out = config.out_dir.resolve()
-    out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out / "config.json", config.to_json())
-    cells = config.cells()
-    rows: dict[str, dict[str, Any]] = {}
-    timing: dict[str, dict[str, Any]] = {}
-    todo: list[Cell] = []
-    for cell in cells:
+    out = prepare_folder(config.out_dir, "--out").resolve()  # absolute: the workers may run elsewhere
+    with FolderLock(out, f"--out {config.out_dir}"):
+        check_folder(out, config, overwrite, shown=config.out_dir)
+        write_json_atomic(out / "config.json", {**stamp("sweep-config", SWEEP_VERSION), **config.to_json()})
+        cells = config.cells()
+        rows: dict[str, dict[str, Any]] = {}
+        timing: dict[str, dict[str, Any]] = {}
+        todo: list[Cell] = []
+        for cell in cells:
+            if cell.folder(out).is_dir() and is_locked(cell.folder(out)):
+                timing[cell.name] = {"status": "busy", "wall_s": None,
+                                     "error": f"cell {cell.name}: another process is writing {cell.folder(out)}"}
+                continue
+            metrics, problem = read_cell(cell, out)
+            if metrics is not None:
+                rows[cell.name] = summary_row(cell, [t["success"] for t in metrics["trials"]])
+                timing[cell.name] = {"status": "resumed", "wall_s": metrics.get("summary", {}).get("wall_s"),
+                                     "error": None}
+            elif problem:
+                log.error("%s; the cell is kept as it is and not run (--overwrite starts the sweep over)", problem)
+                timing[cell.name] = {"status": "refused", "wall_s": None, "error": problem}
+            else:
+                todo.append(cell)
+        log.info("%d of %d cells to run (%d finished before)", len(todo), len(cells), len(rows))
+
+        executor = "pool" if config.dask is None else f"dask {config.dask}"
+        if todo:
+            results = (_on_pool(todo, out, config.workers) if config.dask is None
+                       else _on_dask(todo, out, config.dask, config.workers))
+            try:
+                with contextlib.closing(results), logging_redirect_tqdm(), \
+                        tqdm(total=len(todo), unit="cell", desc="sweep", disable=not progress) as bar:
+                    for cell, result in results:
+                        _record(cell, result, out, config, rows, timing)
+                        bar.set_postfix(failed=sum(t["status"] == "failed" for t in timing.values()), refresh=False)
+                        bar.update(1)
+            except KeyboardInterrupt:
+                raise SweepStopped(len(rows), len(cells)) from None
+
+        by_status = {status: [c.name for c in cells if timing[c.name]["status"] == status]
+                     for status in ("ran", "resumed", "failed", "refused", "busy")}
+        ordered = [rows[c.name] for c in cells if c.name in rows]
+        write_json_atomic(out / "summary.json", {**stamp("sweep-summary", SWEEP_VERSION), "rows": ordered})
+        write_json_atomic(out / "timing.json", {
+            **stamp("sweep-timing", SWEEP_VERSION),
+            "executor": executor,
+            "workers": config.workers,
+            "total_wall_s": time.perf_counter() - wall0,
+            **{status: (len(names) if status in ("ran", "resumed") else names) for status, names in by_status.items()},
+            "cells": [{"cell": c.name, **timing[c.name]} for c in cells],
+        })
+    return {"cells": len(cells), "ran": len(by_status["ran"]), "resumed": len(by_status["resumed"]),
+            "failed": by_status["failed"], "refused": by_status["refused"], "busy": by_status["busy"],
+            "rows": ordered}
+
+
+def _record(cell: Cell, result: dict[str, Any], out: Path, config: SweepConfig, rows: dict[str, dict[str, Any]],
+            timing: dict[str, dict[str, Any]]) -> None:
+    """Book one finished task: its row if the cell now verifies, else why not."""
+    error = result["error"]
+    status = "busy" if result.get("busy") else "ran"
+    if error is None:
         metrics, problem = read_cell(cell, out)
-        if metrics is not None:
+        if metrics is None:
+            error = f"the run finished but left no valid metrics.json: {problem or 'missing'}" + (
+                "" if config.dask in (None, "local") else " (is the folder shared with the workers?)")
+        else:
             rows[cell.name] = summary_row(cell, [t["success"] for t in metrics["trials"]])
-            timing[cell.name] = {"status": "resumed", "wall_s": metrics.get("summary", {}).get("wall_s"),
-                                 "error": None}
-            continue
-        if problem:
-            log.warning("%s; running the cell again", problem)
-            (cell.folder(out) / "metrics.json").unlink()
-        todo.append(cell)
-    log.info("%d of %d cells to run (%d finished before)", len(todo), len(cells), len(rows))
-
-    executor = "pool" if config.dask is None else f"dask {config.dask}"
-    if todo:
-        results = (_on_pool(todo, out, config.workers) if config.dask is None
-                   else _on_dask(todo, out, config.dask, config.workers))
-        with logging_redirect_tqdm(), tqdm(total=len(todo), unit="cell", desc="sweep", disable=not progress) as bar:
-            for cell, result in results:
-                error = result["error"]
-                if error is None:
-                    metrics, problem = read_cell(cell, out)
-                    if metrics is None:
-                        error = f"the run finished but left no valid metrics.json: {problem or 'missing'}" + (
-                            "" if config.dask in (None, "local") else " (is the folder shared with the workers?)")
-                    else:
-                        rows[cell.name] = summary_row(cell, [t["success"] for t in metrics["trials"]])
-                if error is not None:
-                    log.error("cell %s failed: %s", cell.name, error)
-                    if result.get("traceback"):
-                        log.debug("%s", result["traceback"])
-                timing[cell.name] = {"status": "ran" if error is None else "failed", "wall_s": result["wall_s"],
-                                     "error": error, **({"traceback": result["traceback"]} if error else {})}
-                bar.set_postfix(failed=sum(t["status"] == "failed" for t in timing.values()), refresh=False)
-                bar.update(1)
-
-    failed = [c.name for c in cells if timing[c.name]["status"] == "failed"]
-    ordered = [rows[c.name] for c in cells if c.name in rows]
-    write_json_atomic(out / "summary.json", ordered)
-    write_json_atomic(out / "timing.json", {
-        "executor": executor,
-        "workers": config.workers,
-        "total_wall_s": time.perf_counter() - wall0,
-        "ran": len(todo) - len(failed),
-        "resumed": len(cells) - len(todo),
-        "failed": failed,
-        "cells": [{"cell": c.name, **timing[c.name]} for c in cells],
-    })
-    return {"cells": len(cells), "ran": len(todo) - len(failed), "resumed": len(cells) - len(todo),
-            "failed": failed, "rows": ordered}
+    if error is not None and status != "busy":
+        status = "failed"
+        log.error("cell %s failed: %s", cell.name, error)
+        if result.get("traceback"):
+            log.debug("%s", result["traceback"])
+    elif status == "busy":
+        log.error("%s", error)
+    timing[cell.name] = {"status": status, "wall_s": result["wall_s"], "error": error,
+                         **({"kept_trials": result["kept"]} if result.get("kept") else {}),
+                         **({"traceback": result["traceback"]} if error and result.get("traceback") else {})}

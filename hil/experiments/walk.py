@@ -1,4 +1,9 @@
-"""The walking experiment: flat ground, a fixed burst length, measured through the whole stack."""
+"""The walking experiment: flat ground, a fixed burst length, measured through the whole stack.
+
+:func:`run_walk`'s metrics (``elegant-stepping walk --json``) carry the stamp ``format: "walk"``,
+``format_version`` :data:`WALK_VERSION` and ``project_version`` first
+(:func:`controller.errors.stamp`); they are not records of the walk (``compare`` leaves them out).
+"""
 
 from __future__ import annotations
 
@@ -9,11 +14,15 @@ from dataclasses import replace
 from typing import Any
 
 from controller.config import ControllerConfig
+from controller.errors import stamp
 from controller.supervisor import Phase
 from hil.lockstep.groundtruth import FootfallTracker
 from hil.lockstep.harness import Lockstep, LockstepConfig
 
 log = logging.getLogger(__name__)
+
+WALK_KIND = "walk"
+WALK_VERSION = 1  # the walk metrics' format version: raise it when a reader of the old one could misread it
 
 
 def walk_config(seed: int = 0, burst_s: float | None = None) -> LockstepConfig:
@@ -25,7 +34,8 @@ def walk_config(seed: int = 0, burst_s: float | None = None) -> LockstepConfig:
 
 def run_walk(seconds: float, seed: int = 0, burst_s: float | None = None, *, progress: bool = False,
              config: LockstepConfig | None = None) -> dict[str, Any]:
-    """Walk for ``seconds`` of simulated time and return the metrics (see ``elegant-stepping walk``)."""
+    """Walk for ``seconds`` of simulated time and return the metrics (see ``elegant-stepping walk``),
+    stamped (:data:`WALK_KIND`, :data:`WALK_VERSION`)."""
     cfg = config or walk_config(seed, burst_s)
     from firmware_sim.plant import RigPlant
 
@@ -52,7 +62,7 @@ def run_walk(seconds: float, seed: int = 0, burst_s: float | None = None, *, pro
         if bar is not None:
             bar.close()
         wall_s = time.perf_counter() - wall0
-        return collect_metrics(ls, tracker, wall_s)
+        return {**stamp(WALK_KIND, WALK_VERSION), **collect_metrics(ls, tracker, wall_s)}
 
 
 def collect_metrics(ls: Lockstep, tracker: FootfallTracker, wall_s: float) -> dict[str, Any]:

@@ -10,8 +10,9 @@ SocketCAN and no second process is needed, so a row runs anywhere the tests do.
 ``RUN-ARGS`` are the ``run`` verb's options (``--interface virtual --channel CH`` are added). At
 exit the leg's ground truth (each axis's state, errors, watchdog trips) and the audit of every
 Set_Input_Pos the daemon put on the bus (:class:`hil.faults.audit.CommandAudit`, against the joint
-limits of the configuration it ran with) are written to ``--leg-report``; the exit code is the
-daemon's.
+limits of the configuration it ran with) are written to ``--leg-report`` (stamped ``format:
+"daemonleg-report"``, ``format_version`` :data:`REPORT_VERSION`; :func:`read_report` checks it);
+the exit code is the daemon's.
 """
 
 from __future__ import annotations
@@ -22,6 +23,24 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
+
+REPORT_KIND = "daemonleg-report"
+REPORT_VERSION = 1  # the leg report's format version: raise it when a reader of the old one could misread it
+
+
+def read_report(path: str | Path) -> dict[str, Any]:
+    """The leg report at ``path`` (empty when there is none), without its stamp.
+
+    Raises:
+        InputError: not JSON, another kind of file or another format version (one line).
+    """
+    from controller.errors import read_stamped_json
+
+    path = Path(path)
+    if not path.exists():
+        return {}
+    return read_stamped_json(path, REPORT_KIND, {REPORT_VERSION})
 
 
 class LegThread(threading.Thread):
@@ -89,7 +108,9 @@ def main(argv: list[str] | None = None) -> int:
         time.sleep(0.2)  # the last frames (IDLE) reach the drivers
         report = leg.report()
         leg.close()
-        Path(args.leg_report).write_text(json.dumps(report))
+        from controller.errors import stamp
+
+        Path(args.leg_report).write_text(json.dumps({**stamp(REPORT_KIND, REPORT_VERSION), **report}))
     return code
 
 

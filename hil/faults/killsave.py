@@ -11,6 +11,10 @@ the one loaded after the previous kill, or raise only because no save has comple
 other outcome is a ``corrupt_load``. The ``.prev`` copy is checked the same way (``prev_corrupt``,
 it must hold a value written no later than the file's). The fallback load
 (:func:`controller.stepping.weights.load_weights_or_fallback`) is counted by its source.
+
+The counts (``elegant-stepping killsave --json``) carry the stamp ``format: "killsave"``,
+``format_version`` :data:`KILLSAVE_VERSION` and ``project_version`` first
+(:func:`controller.errors.stamp`).
 """
 
 from __future__ import annotations
@@ -24,8 +28,11 @@ from typing import Any
 
 import numpy as np
 
+from controller.errors import stamp
 from controller.stepping.weights import WeightsError, load_weights, load_weights_or_fallback, prev_path, save_weights
 
+KILLSAVE_KIND = "killsave"
+KILLSAVE_VERSION = 1  # the counts' format version: raise it when a reader of the old one could misread it
 STEP = 1e-3  # save k writes weights k * STEP [s]
 N_CELLS = 28
 CELL_WIDTH_M = 0.04
@@ -126,6 +133,7 @@ def kill_during_saves(n: int, folder: str | Path, seed: int, max_delay_s: float 
     finally:
         quiet.setLevel(level)
     return {
+        **stamp(KILLSAVE_KIND, KILLSAVE_VERSION),
         **counts,
         "tmp_files_left": _temporaries(folder, path),
         "saves_completed": 0 if last_k is None else last_k + 1,

@@ -26,6 +26,11 @@ Each row starts what it needs and returns a row of the matrix (``fault``, ``wher
   (``stop_ms``: from the signal to the exit).
 
 ``data_lost`` is true when a weights file that should have been kept is gone or changed.
+
+Each finished row is kept in ``OUT/NAME/row.json``, stamped ``format: "fault-row"``,
+``format_version`` :data:`ROW_VERSION` (:func:`controller.errors.stamp`), and read back instead
+of running the row again (:func:`read_row`: a file from before stamps is version 0, accepted;
+another kind or version is refused in one line). The stamp is the file's, not the row's.
 """
 
 from __future__ import annotations
@@ -46,6 +51,8 @@ import numpy as np
 from controller.config import ControllerConfig
 from hil.faults.audit import CommandAudit
 
+ROW_KIND = "fault-row"
+ROW_VERSION = 1  # row.json's format version: raise it when a reader of the old one could misread it
 SECONDS_AT_START = 3.0  # how long the latched-at-start rows let the controller try [s]
 FOREIGN_FRAMES = 1500  # the second master's frames, one per physics step
 
@@ -224,6 +231,7 @@ def _config(folder: Path, weights: Path, auto_arm: bool) -> Path:
 
 
 def _daemon(folder: Path, config: Path, *extra: str) -> subprocess.Popen:
+    (folder / "leg.json").unlink(missing_ok=True)  # never an earlier run's report
     channel = f"lifecycle-{uuid.uuid4().hex[:8]}"
     argv = [sys.executable, "-m", "hil.faults.daemonleg", "--channel", channel, "--leg-report",
             str(folder / "leg.json"), "--", "--config", str(config), "--socket", "none",
@@ -233,8 +241,9 @@ def _daemon(folder: Path, config: Path, *extra: str) -> subprocess.Popen:
 
 def _leg(folder: Path) -> dict[str, Any]:
     """What the daemon's process reported of the simulated leg and of the commands it audited."""
-    path = folder / "leg.json"
-    return json.loads(path.read_text()) if path.exists() else {}
+    from hil.faults.daemonleg import read_report
+
+    return read_report(folder / "leg.json")
 
 
 def _outside(folder: Path) -> int | None:
@@ -377,16 +386,33 @@ ROWS: dict[str, Callable[[Path], dict[str, Any]]] = {
 """Every lifecycle row by name (``faults --only NAME``), the one place one is added."""
 
 
+def write_row(path: str | Path, row: dict[str, Any]) -> None:
+    """``row`` to ``path``, stamped (:data:`ROW_KIND`, :data:`ROW_VERSION`), atomically."""
+    from controller.atomic import write_json_atomic
+    from controller.errors import stamp
+
+    write_json_atomic(path, {**stamp(ROW_KIND, ROW_VERSION), **row}, indent=1)
+
+
+def read_row(path: str | Path) -> dict[str, Any]:
+    """The row kept at ``path``, without the file's stamp (version 0, unstamped, accepted).
+
+    Raises:
+        InputError: not JSON, another kind of file or another format version (one line).
+    """
+    from controller.errors import read_stamped_json
+
+    return read_stamped_json(path, ROW_KIND, {0, ROW_VERSION})
+
+
 def run_rows(names: list[str], out_dir: str | Path) -> list[dict[str, Any]]:
     """Run the named rows, each in ``out_dir/NAME/`` (its ``row.json`` read back when there)."""
-    from controller.atomic import write_json_atomic
-
     rows = []
     for name in names:
         folder = Path(out_dir) / name
         done = folder / "row.json"
         if done.exists():
-            rows.append(json.loads(done.read_text()))
+            rows.append(read_row(done))
             continue
         try:
             row = ROWS[name](folder)
@@ -394,6 +420,6 @@ def run_rows(names: list[str], out_dir: str | Path) -> list[dict[str, Any]]:
             row = _row(name, "lifecycle", error=repr(exc))
         folder.mkdir(parents=True, exist_ok=True)
         if "error" not in row:
-            write_json_atomic(done, row, indent=1)
+            write_row(done, row)
         rows.append(row)
     return rows

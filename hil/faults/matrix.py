@@ -420,25 +420,64 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def known_rows() -> list[str]:
+    """Every name ``faults --only`` takes: the control, the rate faults, the events, the kill
+    during a weight save and the lifecycle rows."""
+    from hil.faults.lifecycle import ROWS as LIFECYCLE_ROWS
+
+    return ["none", *FAULT_KINDS, *EVENTS, "kill_during_save", *LIFECYCLE_ROWS]
+
+
+def parse_only(text: str) -> list[str]:
+    """The rows ``--only`` names (comma separated; empty: every row).
+
+    Raises:
+        UsageError: a name that is not a row (all of them named, with the known ones), or a list
+            of nothing but commas.
+    """
+    from controller.errors import UsageError
+
+    if not text:
+        return []
+    wanted = [w.strip() for w in text.split(",") if w.strip()]
+    known = known_rows()
+    unknown = [w for w in wanted if w not in known]
+    if unknown or not wanted:
+        raise UsageError(f"--only: unknown row(s) {', '.join(unknown) or '(none given)'}; known: {', '.join(known)}")
+    return wanted
+
+
 def main_faults(args) -> int:
-    """``elegant-stepping faults``: run the matrix, write the rows as JSON and a Markdown table."""
+    """``elegant-stepping faults``: run the matrix, write the rows as JSON and a Markdown table.
+    Every option is checked before any case runs: an unknown ``--only`` row or a malformed seed
+    list is a usage error (exit 2), an output path that cannot be written an input error (3)."""
+    from controller.cli.common import check_output_file, check_output_folder
+    from controller.errors import UsageError
     from hil.experiments.sweep import parse_seeds
 
     from hil.faults.lifecycle import ROWS as LIFECYCLE_ROWS, run_rows
 
+    wanted = parse_only(args.only)
+    seeds = {}
+    for option, text in (("--seeds", args.seeds), ("--loss-seeds", args.loss_seeds)):
+        try:
+            seeds[option] = parse_seeds(text) if text else ()
+        except ValueError as exc:
+            raise UsageError(f"{option}: {exc}") from None
+        if any(seed < 0 for seed in seeds[option]):
+            raise UsageError(f"{option}: seeds are non-negative, got {text!r}")
+    if not seeds["--seeds"]:
+        raise UsageError(f"--seeds: no seed in {args.seeds!r}")
+    check_output_folder(args.out, "--out")
+    check_output_file(args.json, "--json")
     out = Path(args.out)
-    cases = default_cases(parse_seeds(args.seeds), parse_seeds(args.loss_seeds) if args.loss_seeds else ())
+    cases = default_cases(seeds["--seeds"], seeds["--loss-seeds"])
     lifecycle = list(LIFECYCLE_ROWS)
-    if args.only:
-        wanted = [w.strip() for w in args.only.split(",") if w.strip()]
-        known = ["none", *FAULT_KINDS, *EVENTS, "kill_during_save", *LIFECYCLE_ROWS]
-        unknown = [w for w in wanted if w not in known]
-        if unknown or not wanted:
-            raise ValueError(f"--only: unknown fault(s) {', '.join(unknown) or '(none given)'}; known: {', '.join(known)}")
+    if wanted:
         cases = [c for c in cases if c.fault in wanted]
         lifecycle = [name for name in lifecycle if name in wanted]
     rows = run_matrix(cases, args.trials, out, workers=args.workers, progress=not args.quiet) if cases else []
-    if args.kills and (not args.only or "kill_during_save" in args.only):
+    if args.kills and (not wanted or "kill_during_save" in wanted):
         rows.append(killsave_row(args.kills, 0, out))
     rows += run_rows(lifecycle, out / "lifecycle")
     if args.hil:  # read back when done before with as many trials, like the lockstep cases

@@ -22,7 +22,9 @@ virtual CPU that the controller and the plant share; a shorter poll there costs 
 late ticks and period jitter. The plant's process also works in 2 ms slices there.
 
 SIGTERM or SIGINT stops it (exit 0); the counts per direction (frames in, forwarded, each fault,
-silenced, send errors), the silence start and the pacing figures are written as JSON at exit.
+silenced, send errors), the silence start and the pacing figures are written as JSON at exit
+(stamped ``format: "mitm-counts"``, ``format_version`` :data:`COUNTS_VERSION`; :func:`read_counts`
+checks it).
 Traffic stays on the two CAN channels: no network address is ever opened.
 """
 
@@ -40,9 +42,13 @@ import can
 import numpy as np
 
 from controller.atomic import write_json_atomic
+from controller.errors import stamp
 from hil.faults.model import FAULT_KINDS, FaultInjector, FaultSpec
 
 log = logging.getLogger(__name__)
+
+COUNTS_KIND = "mitm-counts"
+COUNTS_VERSION = 1  # the counts file's format version: raise it when a reader of the old one could misread it
 
 def default_poll_s() -> float:
     """The pause after each batch on this platform [s] (:attr:`hil.profile.Profile.mitm_poll_s`)."""
@@ -167,9 +173,22 @@ def _open(channel: str) -> tuple[can.BusABC, can.BusABC]:
 
 
 def _write_json(path: str | Path | None, data: dict[str, Any]) -> None:
+    """The counts to ``path`` (if any), stamped (:data:`COUNTS_KIND`, :data:`COUNTS_VERSION`)."""
     if path is None:
         return
-    write_json_atomic(path, data, indent=1)
+    write_json_atomic(path, {**stamp(COUNTS_KIND, COUNTS_VERSION), **data}, indent=1)
+
+
+def read_counts(path: str | Path) -> dict[str, Any]:
+    """The counts :func:`run_mitm` wrote to ``path``, without the stamp.
+
+    Raises:
+        InputError: not JSON, another kind of file or another format version (one line).
+        OSError: the file cannot be read.
+    """
+    from controller.errors import read_stamped_json
+
+    return read_stamped_json(path, COUNTS_KIND, {COUNTS_VERSION})
 
 
 class WakeStats:
@@ -265,4 +284,4 @@ def run_mitm(controller_channel: str, leg_channel: str, *, to_leg: FaultSpec = F
     return summary
 
 
-__all__ = ["Link", "ManInTheMiddle", "run_mitm", "default_poll_s"]
+__all__ = ["Link", "ManInTheMiddle", "run_mitm", "default_poll_s", "read_counts", "COUNTS_KIND", "COUNTS_VERSION"]

@@ -28,11 +28,11 @@ import time
 from dataclasses import replace
 from typing import Any
 
-import can
 
 from firmware_sim.leg import LegHardware, SimulatedLeg
 from firmware_sim.plant import Obstacle, RigConfig
 from controller.daemon.fastbus import lean
+from controller.daemon.openbus import open_bus
 from hil.lockstep.groundtruth import FootfallTracker
 from controller.daemon.pacing import Pacer
 from hil.session.scenario import SideChannel
@@ -157,14 +157,16 @@ def run_firmware(bus_kw: dict[str, Any], *, seed: int = 0, gui: bool = False, sc
                  duration_s: float | None = None, steps_per_wake: int | None = None) -> dict[str, Any]:
     """Run until SIGTERM/SIGINT, a ``quit`` on the side channel or ``duration_s`` of simulated
     time. ``steps_per_wake``: physics steps done at each wake-up (default 1; 2 inside User-Mode
-    Linux, where a wake-up costs far more: physics stays at 1 kHz, paced in 2 ms slices)."""
+    Linux, where a wake-up costs far more: physics stays at 1 kHz, paced in 2 ms slices).
+
+    Raises:
+        InputError: the side channel's address cannot be served (:class:`hil.session.scenario.SideChannel`).
+        BusError: the bus cannot be opened (:func:`controller.daemon.openbus.open_bus`).
+    """
     stop = {"flag": False}
 
     def on_signal(signum, frame):  # noqa: ARG001
         stop["flag"] = True
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
 
     hw = LegHardware()
     sensor = hw.sensor
@@ -174,10 +176,22 @@ def run_firmware(bus_kw: dict[str, Any], *, seed: int = 0, gui: bool = False, sc
         sensor = replace(sensor, range_dropout_prob=range_dropout_prob)
     hw = replace(hw, sensor=sensor)
     rig = RigConfig()
-    bus = can.Bus(**bus_kw)
-    leg = SimulatedLeg(lean(bus, timestamps=False), rig=rig, hardware=hw, seed=seed, gui=gui)
+    chan = SideChannel(scenario) if scenario else None  # first: a bad address costs no bus and no plant
+    try:
+        bus = open_bus(bus_kw)
+        # from here on a stop signal ends the run in order (the plant's start-up included)
+        signal.signal(signal.SIGTERM, on_signal)
+        signal.signal(signal.SIGINT, on_signal)
+        try:
+            leg = SimulatedLeg(lean(bus, timestamps=False), rig=rig, hardware=hw, seed=seed, gui=gui)
+        except BaseException:
+            bus.shutdown()
+            raise
+    except BaseException:
+        if chan is not None:
+            chan.close()
+        raise
     scen = Scenario(leg)
-    chan = SideChannel(scenario) if scenario else None
     if steps_per_wake is None:
         from hil.profile import current
 

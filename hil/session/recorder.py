@@ -5,6 +5,14 @@ counts frames each way (what the controller sends, by the bus contract's senders
 leg sends), measures command-to-feedback latency (each Set_Input_Pos to the next
 Get_Encoder_Estimates from the same axis, kernel receive timestamps) and, if asked, keeps every
 Set_Input_Pos target for the command audit (:mod:`hil.faults.audit`).
+
+Beside the recording, when it stops, it writes the log's metadata
+(:func:`hil.analysis.buslog.metadata_path`: ``bus.blf.json`` beside ``bus.blf``), stamped
+``bus-log`` version :data:`hil.analysis.buslog.METADATA_VERSION` (:func:`controller.errors.stamp`):
+the channel, the frames written each way, the recorder's error. Its readers
+(:func:`hil.analysis.buslog.read_metadata`: ``replay``, ``decode``, the bus load) refuse an
+unknown version in one line, read a metadata file without a stamp as version 0, and compare the
+frame count with the frames they read, which finds a log cut short at a frame boundary.
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ from typing import Any
 
 import can
 
+from hil.analysis.buslog import METADATA_KIND, METADATA_VERSION, metadata_path
 from protocol import SENSOR_BOARD_NODE_ID, BusContract, split_arbitration_id
 
 _CONTRACT = BusContract.load()
@@ -27,7 +36,6 @@ CONTROLLER_CMDS = _CONTRACT.odrive_master_cmds  # the DBC's messages sent by the
 SET_INPUT_POS = split_arbitration_id(_CONTRACT.odrive_id(0, "Set_Input_Pos"))[1]
 GET_ENCODER_ESTIMATES = split_arbitration_id(_CONTRACT.odrive_id(0, "Get_Encoder_Estimates"))[1]
 _F32 = struct.Struct("<f")  # Set_Input_Pos's Input_Pos [rev]
-
 
 def sent_by_controller(msg: can.Message) -> bool:
     """True for a frame only the controller sends: a command of the contract's master messages
@@ -45,19 +53,26 @@ class BusRecorder(threading.Thread):
     def __init__(self, channel: str, path: Path, audit_commands: bool = False) -> None:
         super().__init__(name="bus-recorder", daemon=True)
         from controller.daemon.fastbus import lean
+        from controller.daemon.openbus import open_bus
 
-        self.raw = can.Bus(interface="socketcan", channel=channel)
+        self.raw = open_bus({"interface": "socketcan", "channel": channel})
+        sock = getattr(self.raw, "socket", None)  # None: not SocketCAN (a test's virtual bus)
         for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
-            if opt is None:
+            if opt is None or sock is None:
                 continue
             try:  # room for a second of traffic between drains
-                self.raw.socket.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
+                sock.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
                 break
             except OSError:
                 continue
         self.bus = lean(self.raw)
-        self.writer = can.Logger(str(path))
+        try:
+            self.writer = can.Logger(str(path))
+        except BaseException:
+            self.raw.shutdown()
+            raise
         self.path = path
+        self.channel = channel
         self.stop_event = threading.Event()
         self.frames = 0
         self.to_leg = 0
@@ -105,10 +120,18 @@ class BusRecorder(threading.Thread):
             self.error = repr(exc)
 
     def stop(self) -> None:
+        """Stop recording, close the log, then write its metadata beside it."""
+        from controller.atomic import write_json_atomic
+        from controller.errors import stamp
+
         self.stop_event.set()
         self.join(timeout=10)
         self.writer.stop()
         self.raw.shutdown()
+        write_json_atomic(metadata_path(self.path), {
+            **stamp(METADATA_KIND, METADATA_VERSION), "log": self.path.name, "channel": self.channel,
+            "frames": self.frames, "controller_to_leg": self.to_leg, "leg_to_controller": self.from_leg,
+            "error": self.error}, indent=1)
 
     def summary(self) -> dict[str, Any]:
         lat = sorted(self.latency_s)

@@ -10,7 +10,7 @@ learns of the obstacle only through its range sensor); the firmware-sim process 
 ground truth on the plant and sends it back. At the end the controller is stopped (SIGTERM: it
 puts the axes in IDLE itself), then the firmware-sim process (``quit``), then the recorder.
 
-``DIR/metrics.json`` has the same ``config``, ``trials`` and ``summary`` as ``learn``; the
+``DIR/metrics.json`` has the same stamp, ``config``, ``trials`` and ``summary`` as ``learn``; the
 trials' controller-side fields (reflexes, gated ranges and cells, burst changes, burst lengths)
 come from the controller's own records, matched to each trial by the monotonic clock both
 processes share. ``timing``: the controller's ticks and late ticks (its own count: period above
@@ -44,10 +44,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from controller.atomic import write_json_atomic
+from controller.errors import stamp
 from controller.daemon.run import phases_seen, read_records
 from hil.analysis.busload import bus_load_from_log
+from hil.analysis.metrics import METRICS_FORMAT
 from hil.profile import Profile, current as current_profile
 from hil.session.outcome import HilError, session_ok
+from hil.analysis.buslog import metadata_path
 from hil.session.recorder import BusRecorder
 from hil.session.scenario import ScenarioClient
 
@@ -183,6 +186,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     log_path = work / ("bus.blf" if log_format == "blf" else "bus.log")
     for stale in ("bus.blf", "bus.log"):
         (out / stale).unlink(missing_ok=True)
+        metadata_path(out / stale).unlink(missing_ok=True)
     recorder = BusRecorder(channel, log_path, audit_commands=faults is not None)
     recorder.start()
     py = [sys.executable, "-m", "hil.cli"]
@@ -296,7 +300,8 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     pacing = final.get("pacing", {})
     watchdog_trips = bye.get("watchdog_trips")
     axes_running = {n: a["state"] for n, a in status_running.get("axes", {}).items()}
-    metrics = {
+    metrics = {  # a learn run's metrics (the same stamp, config, trials, summary) plus timing, hil, fault
+        **stamp(METRICS_FORMAT, 1),
         "config": dataclasses.asdict(config),
         "trials": trial_dicts,
         "summary": summarize(trial_dicts, wall_s, bye.get("t_s", 0.0)) if trial_dicts else {"trials": 0},
@@ -367,9 +372,22 @@ def _fault_plan(args) -> FaultPlan | None:
 
 
 def main_hil(args) -> int:
+    """``elegant-stepping hil``: the options are checked first (the trial count, the output folder,
+    the fault plan), then where the session can run (no vcan and no User-Mode Linux: exit 6), and
+    only then is anything started, User-Mode Linux included."""
+    from controller.cli.common import check_output_folder
+    from controller.errors import MissingDependency, UsageError
     from hil.uml.runner import VcanUnavailable, instruction, native_vcan, run_in_uml, where
 
-    plan = _fault_plan(args)
+    if args.trials < 1:
+        raise UsageError(f"--trials must be at least 1, got {args.trials}")
+    check_output_folder(args.out, "--out")
+    try:
+        plan = _fault_plan(args)
+    except ValueError as exc:  # the fault options contradict each other
+        raise UsageError(str(exc)) from None
+    if plan is not None and plan.leg_channel == args.channel:
+        raise UsageError(f"the leg's channel must differ from the controller's --channel {args.channel}")
     try:
         place = where(args.where, args.channel)
         if plan is not None and place == "native" and not native_vcan(plan.leg_channel):
@@ -378,8 +396,7 @@ def main_hil(args) -> int:
                                       f"{instruction(plan.leg_channel, uml_considered=False)}")
             place = where("uml", args.channel)
     except VcanUnavailable as exc:
-        print(f"elegant-stepping hil: {exc}", file=sys.stderr)
-        return 3
+        raise MissingDependency(str(exc)) from None
     out = Path(args.out).resolve()
     if place == "uml" and not current_profile().uml:
         out.mkdir(parents=True, exist_ok=True)

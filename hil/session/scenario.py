@@ -4,16 +4,25 @@ The firmware-sim process serves it (:class:`SideChannel`, non-blocking, one clie
 the HIL session, the dry run and the bench connect to it (:class:`ScenarioClient`). An address
 starting with ``@`` is in the abstract namespace. The requests and replies are described in
 :mod:`hil.session.firmware`. The channel is a side channel of the simulation, never the bus.
+
+A path address never costs a file that is not the server's own: an existing file there that is not
+a socket is refused (:class:`controller.errors.InputError`, exit 3), and so is a socket another
+process still serves; only a stale socket (one that no process answers on: a firmware-sim that
+was killed) is removed and replaced. The server removes its socket file when it closes, if the
+file is still the one it made.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import socket
+import stat
 import time
 from typing import Any
 
+from controller.errors import InputError
 from hil.session.outcome import HilError
 
 
@@ -22,15 +31,55 @@ def unix_address(addr: str) -> str:
     return "\0" + addr[1:] if addr.startswith("@") else addr
 
 
+def claim_address(addr: str, option: str = "--scenario") -> None:
+    """Make a path address ``addr`` free for a server, or refuse it in one line naming ``option``:
+    an existing file that is not a socket is never removed, nor a socket another process serves;
+    a stale socket (nobody answers) is removed. Abstract addresses (``@name``) have no file."""
+    real = unix_address(addr)
+    if real.startswith("\0") or not os.path.lexists(real):
+        return
+    try:
+        mode = os.lstat(real).st_mode
+    except OSError as exc:
+        raise InputError(f"{option} {addr}: {exc.strerror}") from None
+    if not stat.S_ISSOCK(mode):
+        raise InputError(f"{option} {addr}: an existing file that is not a socket; it is left alone (give a path "
+                         f"that does not exist, or '@name' for the abstract namespace)")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.connect(real)
+    except ConnectionRefusedError:  # stale: its server is gone
+        os.unlink(real)
+        return
+    except OSError as exc:
+        raise InputError(f"{option} {addr}: an existing socket that cannot be checked ({exc.strerror}); "
+                         f"it is left alone") from None
+    finally:
+        probe.close()
+    raise InputError(f"{option} {addr}: another process serves this socket; give another address")
+
+
 class SideChannel:
-    """A non-blocking JSON-lines server for one client at a time."""
+    """A non-blocking JSON-lines server for one client at a time (see the module docstring for
+    what an existing file at the address gets).
+
+    Raises:
+        InputError: the address cannot be served (a file that is not a socket, a socket in use,
+            a folder that does not exist, a path too long for a Unix socket).
+    """
 
     def __init__(self, addr: str) -> None:
-        self.server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         real = unix_address(addr)
-        if not real.startswith("\0") and os.path.exists(real):
-            os.unlink(real)
-        self.server.bind(real)
+        claim_address(addr)
+        self.server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            self.server.bind(real)
+        except OSError as exc:
+            self.server.close()
+            why = "already in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
+            raise InputError(f"--scenario {addr}: cannot serve the side channel there: {why}") from None
+        self._path = None if real.startswith("\0") else real
+        self._ino = None if self._path is None else os.stat(self._path).st_ino
         self.server.listen(1)
         self.server.setblocking(False)
         self.client: socket.socket | None = None
@@ -81,6 +130,12 @@ class SideChannel:
         if self.client is not None:
             self.client.close()
         self.server.close()
+        if self._path is not None:  # our socket file, if it is still ours
+            try:
+                if os.stat(self._path).st_ino == self._ino:
+                    os.unlink(self._path)
+            except OSError:
+                pass
 
 
 class ScenarioClient:

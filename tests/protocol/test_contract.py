@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 
 import pytest
 from hypothesis import given, settings
@@ -129,3 +130,200 @@ def test_the_contract_knows_what_only_the_master_sends():
     assert not c.master_messages & {"Heartbeat", "Get_Encoder_Estimates", "SB_Range", "SB_Heartbeat", "TxSdo"}
     # Address is sent by the master and answered by the ODrive: hearing it proves no other master.
     assert "Address" not in c.master_messages and set(c.codec("Address").message.senders) == {"Controller", "ODrive"}
+
+
+def _contract_of(signals: str, value_types: str = "") -> BusContract:
+    import cantools
+
+    text = ('VERSION ""\nNS_ :\nBS_:\nBU_: Controller ODrive\n\nBO_ 12 Set_Input_Pos: 8 Controller\n'
+            f"{signals}\n{value_types}")
+    return BusContract(cantools.database.load_string(text, strict=True))
+
+
+@pytest.mark.parametrize("scale,offset", [(2, 0), (1, 1), (0.5, -3)])
+def test_a_float_signal_with_a_scale_or_offset_is_read_as_cantools_reads_it(scale, offset):
+    c = _contract_of(f' SG_ Input_Pos : 0|32@1+ ({scale},{offset}) [0|0] "rev" ODrive\n',
+                     "SIG_VALTYPE_ 12 Input_Pos : 1;\n")
+    codec = c.codec("Set_Input_Pos")
+    assert not codec.compiled  # the struct path scales integers only
+    for value in (1.25, -7.5, 0.0):
+        data = codec.pack(value)
+        assert data == bytes(codec.message.encode({"Input_Pos": value}))
+        raw = struct.unpack("<f", data[:4])[0]
+        assert raw == pytest.approx((value - offset) / scale)
+        assert codec.unpack(data) == pytest.approx((value,)) and codec.decode(data) == pytest.approx(
+            {"Input_Pos": value})
+    unscaled = _contract_of(' SG_ Input_Pos : 0|32@1+ (1,0) [0|0] "rev" ODrive\n', "SIG_VALTYPE_ 12 Input_Pos : 1;\n")
+    assert unscaled.codec("Set_Input_Pos").compiled
+
+
+# --------------------------------------------------------------------------- a contract built inside the test
+# (the module-level contract above is built at import: these build their own, so that every line of
+# MessageCodec and BusContract runs under the test, as mutation testing needs)
+def _sample(sig, k: int) -> float:
+    """A value for ``sig``: for an integer signal a raw value inside its range (the k-th of a few)
+    in physical units, for a float one a float32."""
+    if sig.is_float:
+        return [1.5, -2.25, 1e3][k % 3]
+    lo, hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed else (0, (1 << sig.length) - 1)
+    raw = [hi, lo, min(hi, 3), max(lo, -3) if sig.is_signed else min(hi, 1)][k % 4]
+    return raw * sig.scale + sig.offset
+
+
+def test_a_fresh_contract_codes_every_message_exactly_as_cantools_does():
+    import cantools
+
+    from protocol import SHORT_FRAMES
+    from protocol.contract import DBC_PATH
+
+    db = cantools.database.load_file(str(DBC_PATH))
+    c = BusContract(db)
+    assert set(c.by_name) == {m.name for m in db.messages}
+    assert c.master_messages == frozenset(m.name for m in db.messages if set(m.senders) == {"Controller"})
+    assert c.odrive == {m.frame_id & 0x1F: c.codec(m.name) for m in db.messages if m.frame_id >> 5 == 0}
+    assert c.sensor_board == {m.frame_id & 0x1F: c.codec(m.name) for m in db.messages if m.frame_id >> 5 == 16}
+    for m in db.messages:
+        codec = c.codec(m.name)
+        signals = sorted(m.signals, key=lambda s: s.start)
+        assert (codec.name, codec.frame_id, codec.cmd_id, codec.dlc) == (m.name, m.frame_id, m.frame_id & 0x1F, m.length)
+        assert codec.min_length == min(SHORT_FRAMES.get(m.name, m.length), m.length)
+        assert codec.signal_names == tuple(s.name for s in signals)
+        for k in range(4):
+            values = tuple(_sample(s, k) for s in signals)
+            data = codec.pack(*values)
+            assert data == bytes(m.encode(dict(zip(codec.signal_names, values)), scaling=True, strict=False)), m.name
+            assert codec.encode(**dict(zip(codec.signal_names, values))) == data
+            assert codec.unpack(data) == pytest.approx(values), m.name
+            assert codec.decode(data) == pytest.approx(dict(zip(codec.signal_names, values)))
+            assert codec.unpack(bytearray(data)) == pytest.approx(values)
+        for i, s in enumerate(signals):  # one raw step beyond each integer signal's range is refused
+            if s.is_float:
+                continue
+            lo, hi = (-(1 << (s.length - 1)), (1 << (s.length - 1)) - 1) if s.is_signed else (0, (1 << s.length) - 1)
+            for raw in (hi + 1, lo - 1):
+                values = [_sample(x, 0) for x in signals]
+                values[i] = raw * s.scale + s.offset
+                with pytest.raises(ValueError):
+                    codec.pack(*values)
+            values = [_sample(x, 0) for x in signals]
+            values[i] = math.nan
+            with pytest.raises(ValueError):
+                codec.pack(*values)
+        if signals:
+            with pytest.raises(ValueError, match=rf"^{m.name} takes {len(signals)} signals, got {len(signals) + 1}$"):
+                codec.pack(*([0] * (len(signals) + 1)))
+            with pytest.raises(ValueError, match=rf"^{m.name}: .*{signals[-1].name}"):  # the missing one, by name
+                codec.encode(**{s.name: _sample(s, 0) for s in signals[:-1]})
+
+
+def test_which_codecs_are_compiled_to_a_struct():
+    import cantools
+
+    from protocol.contract import DBC_PATH
+
+    c = BusContract(cantools.database.load_file(str(DBC_PATH)))
+    compiled = {name for name, codec in c.by_name.items() if codec.compiled}
+    # every message whose signals are byte-aligned little-endian 8/16/32-bit fields, or floats
+    assert compiled == set(c.by_name) - {"Heartbeat", "Address"}
+    assert not c.codec("Heartbeat").compiled  # a 1-bit flag
+    assert not c.codec("Address").compiled  # a 48-bit serial number
+
+
+def test_short_payloads_read_as_zero_padded_down_to_their_minimum_and_no_further():
+    import cantools
+
+    from protocol.contract import DBC_PATH
+
+    c = BusContract(cantools.database.load_file(str(DBC_PATH)))
+    state = c.codec("Set_Axis_State")
+    assert state.accepts_length(4) and not state.accepts_length(3) and state.accepts_length(8)
+    assert state.unpack(b"\x08\x00\x00\x00") == (8,)
+    with pytest.raises(ValueError, match=r"^Set_Axis_State: payload of 3 bytes, at least 4 expected$"):
+        state.unpack(b"\x08\x00\x00")
+    enc = c.codec("Get_Encoder_Estimates")
+    with pytest.raises(ValueError, match=r"^Get_Encoder_Estimates: payload of 7 bytes, DLC 8 expected$"):
+        enc.unpack(bytes(7))
+    reboot = c.codec("Reboot")
+    assert reboot.min_length == 0 and reboot.unpack(b"") == (0,)
+    assert c.min_payload_length("RxSdo") == 4 and c.min_payload_length("Heartbeat") == 8
+
+
+def test_cycle_times_ids_and_unknown_names():
+    import cantools
+
+    from protocol.contract import DBC_PATH
+
+    c = BusContract(cantools.database.load_file(str(DBC_PATH)))
+    assert c.cycle_time_s("Heartbeat") == 0.1 and c.cycle_time_s("Get_Encoder_Estimates") == 0.002
+    assert c.cycle_time_s("SB_Contacts") == 0.005 and c.cycle_time_s("Set_Input_Pos") is None
+    assert c.odrive_id(3, "Heartbeat") == 0x61
+    with pytest.raises(KeyError, match="no message named 'Nope' in the DBC"):
+        c.codec("Nope")
+    assert arbitration_id(63, 31) == 0x7FF and arbitration_id(0, 0) == 0
+    for bad in ((-1, 0), (64, 0), (0, -1), (0, 32)):
+        with pytest.raises(ValueError, match="must be 0..63|must be 0..31"):
+            arbitration_id(*bad)
+    assert split_arbitration_id(0x7FF) == (63, 31)
+
+
+def test_sdo_value_conversions_check_their_ranges():
+    from protocol.contract import sdo_bits_value, sdo_value_bits
+
+    assert sdo_bits_value(0) == 0.0 and sdo_bits_value(0xFFFFFFFF) != sdo_bits_value(0xFFFFFFFF)  # a NaN
+    assert sdo_value_bits(1.0) == 0x3F800000 and sdo_bits_value(0x3F800000) == 1.0
+    for bad in (-1, 1 << 32):
+        with pytest.raises(ValueError, match=r"^SDO value bits must be a uint32, got "):
+            sdo_bits_value(bad)
+    with pytest.raises(ValueError, match=r"does not fit a float32 SDO value"):
+        sdo_value_bits(1e39)
+    with pytest.raises(ValueError):
+        sdo_value_bits("x")  # type: ignore[arg-type]
+
+
+def _contract_from(messages: str, value_types: str = "") -> BusContract:
+    import cantools
+
+    text = f'VERSION ""\nNS_ :\nBS_:\nBU_: Controller ODrive\n\n{messages}\n{value_types}'
+    return BusContract(cantools.database.load_string(text, strict=True))
+
+
+@pytest.mark.parametrize("signals,value_types", [
+    # a gap between two fields, an offset integer, a non-byte-aligned float, a big-endian field
+    (' SG_ A : 0|8@1+ (1,0) [0|0] "" ODrive\n SG_ B : 24|16@1- (1,0) [0|0] "" ODrive\n', ""),
+    (' SG_ A : 0|16@1+ (1,-100) [0|0] "" ODrive\n SG_ B : 16|16@1- (0.5,3) [0|0] "" ODrive\n', ""),
+    (' SG_ A : 1|32@1+ (1,0) [0|0] "" ODrive\n', "SIG_VALTYPE_ 12 A : 1;\n"),
+    (' SG_ A : 7|16@0+ (1,0) [0|0] "" ODrive\n', ""),
+], ids=["gap", "offset", "bit 1", "big endian"])
+def test_other_layouts_are_coded_exactly_as_cantools_codes_them(signals, value_types):
+    c = _contract_from(f"BO_ 12 Set_Input_Pos: 8 Controller\n{signals}", value_types)
+    codec = c.codec("Set_Input_Pos")
+    for k in range(4):
+        values = tuple(_sample(s, k) for s in sorted(codec.message.signals, key=lambda s: s.start))
+        data = codec.pack(*values)
+        assert data == bytes(codec.message.encode(dict(zip(codec.signal_names, values)), strict=False))
+        assert codec.unpack(data) == pytest.approx(values)
+        assert codec.unpack(data) == pytest.approx(tuple(codec.message.decode(data)[n] for n in codec.signal_names))
+
+
+def test_integers_of_an_unscaled_message_decode_as_ints_and_range_errors_say_why():
+    import cantools
+
+    from protocol.contract import DBC_PATH
+
+    db = cantools.database.load_file(str(DBC_PATH))
+    c = BusContract(db)
+    assert c.db is db
+    state = c.codec("Set_Axis_State")
+    assert state.unpack(state.pack(8)) == (8,) and type(state.unpack(state.pack(8))[0]) is int
+    limits = c.codec("Set_Controller_Mode")
+    assert all(type(v) is int for v in limits.unpack(limits.pack(3, 1)))
+    with pytest.raises(ValueError, match=r"^Set_Axis_State: value 4294967296 outside the signal's raw range "
+                                         r"\(0, 4294967295\)$"):
+        state.pack(1 << 32)
+    with pytest.raises(ValueError, match=r"^Set_Axis_State: non-finite value nan for an integer signal$"):
+        state.pack(math.nan)
+
+
+def test_a_dbc_message_of_no_known_node_is_refused_naming_it():
+    with pytest.raises(ValueError, match=r"^DBC message Stray at 0x100 belongs to no known node$"):
+        _contract_from('BO_ 256 Stray: 1 Controller\n SG_ X : 0|8@1+ (1,0) [0|0] "" ODrive\n')

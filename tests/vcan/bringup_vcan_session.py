@@ -1,13 +1,16 @@
 """One bring-up session on a kernel with vcan0 (natively, or inside User-Mode Linux): run by
 tests/vcan/test_bringup_vcan.py, not collected by pytest.
 
-1. ``elegant-stepping bringup --channel vcan0`` with nothing else on vcan0: must fail fast;
+1. ``elegant-stepping bringup --channel vcan0`` with nothing else on vcan0: must fail fast; the
+   platform's floor (:class:`hil.bench.floor.FloorProbe`) is measured beside it, for the test's
+   bound on how long it may take;
 2. ``elegant-stepping firmware-sim --channel vcan0`` started, waited for (its first heartbeat),
    then ``elegant-stepping bringup --channel vcan0 --json OUT/bringup.json``: must pass;
 3. firmware-sim stopped with SIGTERM.
 
 Usage: python3 tests/vcan/bringup_vcan_session.py OUT_DIR. Writes OUT_DIR/session.json (each
-command's exit code, wall time and output) and exits 0 once everything ran (the test judges).
+command's exit code, wall time and output; ``silent_floor``: the floor beside the first) and exits
+0 once everything ran (the test judges).
 """
 
 from __future__ import annotations
@@ -20,6 +23,10 @@ import time
 from pathlib import Path
 
 import can
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # a script: the repository's packages, as its children get them
+from hil.bench.floor import FloorProbe  # noqa: E402
+from hil.profile import current  # noqa: E402
 
 CHANNEL = "vcan0"
 HEARTBEAT_CMD = 0x01
@@ -50,7 +57,9 @@ def wait_for_heartbeat(timeout_s: float) -> float | None:
 def main(out: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
     es = [sys.executable, "-m", "hil.cli"]
-    session: dict = {"silent": run(es + ["bringup", "--channel", CHANNEL, "--json", str(out / "silent.json")], 120)}
+    with FloorProbe() as floor:
+        silent = run(es + ["bringup", "--channel", CHANNEL, "--json", str(out / "silent.json")], 120)
+    session: dict = {"where": current().name, "silent": silent, "silent_floor": floor.result}
     fw_log = (out / "firmware-sim.log").open("w")
     fw = subprocess.Popen(es + ["firmware-sim", "--channel", CHANNEL], stdout=subprocess.DEVNULL, stderr=fw_log,
                           stdin=subprocess.DEVNULL)

@@ -60,5 +60,15 @@ def test_bringup_fails_fast_on_an_empty_bus(session):
     assert silent["rc"] == 1, f"{silent['stdout']}\n{silent['stderr']}"
     assert "no frame at all on vcan0" in silent["stdout"] and "termination" in silent["stdout"]
     report = json.loads((out / "silent.json").read_text())
-    assert [i["status"] for i in report["items"]] == ["FAIL"]
-    assert report["elapsed_s"] < 5.0  # the listen window (1.5 s), measured by the command itself
+    assert [i["status"] for i in report["items"]] == ["FAIL"]  # nothing after the listen: no check waits
+    # Fast: it listened its whole window (1.5 s, measured by the command itself) and not longer
+    # than the window plus one poll of the bus plus the platform's longest stall measured beside it
+    # in this very session (hil.profile.Profile.late_allowance_s): no fixed wall-clock budget.
+    from controller.bringup.procedure import BringupConfig
+    from hil.profile import named
+
+    cfg, floor = BringupConfig(), s["silent_floor"]
+    assert floor["error"] is None and floor["ticks"] > 0, floor
+    assert report["elapsed_s"] >= cfg.listen_s - 1e-3  # (rounded to 0.1 ms in the report)
+    limit_s = cfg.listen_s + cfg.poll_s + named(s["where"]).late_allowance_s(floor["max_period_s"])
+    assert report["elapsed_s"] <= limit_s, (report["elapsed_s"], floor)

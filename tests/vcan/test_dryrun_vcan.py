@@ -19,6 +19,7 @@ def test_the_deployment_dry_run_against_the_simulated_leg(tmp_path):
     `status`, `arm` walks, `estop` stops, a restart keeps it stopped (arm refused: the e-stop is
     latched in the drivers), `clear-faults` then `arm` walks again; regular pings, STOPPING after
     SIGTERM, exit 0."""
+    from hil.profile import named
     from hil.uml.runner import VcanUnavailable, where
 
     try:
@@ -48,9 +49,19 @@ def test_the_deployment_dry_run_against_the_simulated_leg(tmp_path):
     stopping = next(i for i, n in enumerate(notes) if n.get("STOPPING") == "1")
     assert ready < stopping and notes[ready]["STATUS"].startswith("inactive")
     assert report["watchdog_usec"] == 1_000_000
+    assert report["format"] == "dryrun" and report["format_version"] == 1
     pings = [n["t_s"] for n in notes[ready:stopping] if n.get("WATCHDOG") == "1"]
     assert len(pings) >= 2.0 / 0.5 * 0.5  # every 0.5 s (this daemon runs at least 2 s after its READY)
-    assert max(np.diff(pings)) < 1.0  # never a gap systemd would have killed it for
+    # Never a gap systemd would have killed it for, on this platform: WatchdogSec, plus the
+    # platform's longest stall measured beside the daemon in this very run (a process doing no
+    # work at the daemon's priority), once for the daemon's loop and once for the listener that
+    # stamps each ping's arrival (hil.profile.Profile.late_allowance_s; the dry run's own check).
+    # No fixed wall-clock budget: natively the stall is a few ms and the limit is WatchdogSec.
+    floor = report["floor"]
+    assert floor["error"] is None and floor["ticks"] > 0 and floor["max_period_s"] >= floor["period_s"], floor
+    stall_s = floor["max_period_s"]
+    limit_s = report["watchdog_usec"] / 1e6 + named(report["where"]).late_allowance_s(stall_s, stall_s)
+    assert max(np.diff(pings)) < limit_s, (max(np.diff(pings)), floor)
     assert any(n.get("STATUS", "").endswith("walking") for n in notes[ready:stopping])
     assert report["final"]["stopped_by"] == "SIGTERM" and report["final"]["steps"] > 0
     assert report["final"]["sd_notify"]["errors"] == 0

@@ -158,19 +158,29 @@ def test_kill_9_of_the_controller_leaves_every_axis_idle_within_the_bound(kill_r
     assert f["states_before"] == {"hip": "CLOSED_LOOP_CONTROL", "knee": "CLOSED_LOOP_CONTROL"}
     # The bound: the drivers' watchdog (0.1 s, or the platform's allowance inside User-Mode Linux,
     # which the controller wrote to the drivers at arming) plus one heartbeat period (0.1 s), as
-    # the leg's heartbeats show it. Both run on the plant process's clock, so a stall of that
-    # process delays them by as much: the slack is the longest period that process had in this
-    # very session (measured, not a wall-clock budget), plus the man-in-the-middle's 2 ms poll.
+    # the leg's heartbeats show it. Every axis IDLE is the outcome asserted; no wall-clock budget
+    # is: both run on the plant process's clock and the last command passed through the
+    # man-in-the-middle node, so the slack is the longest stall each of them had in this very
+    # session (measured: the plant's longest period, the node's longest busy gap), summed by the
+    # platform profile (hil.profile.Profile.late_allowance_s), the rule the session's own
+    # ``within_bound`` uses.
     from hil.profile import named
 
-    watchdog_ms = (named(h["where"]).driver_watchdog_s or 0.1) * 1e3
+    profile = named(h["where"])
+    watchdog_ms = (profile.driver_watchdog_s or 0.1) * 1e3
     assert f["bound_ms"] == pytest.approx(watchdog_ms + 100.0)
-    stall_ms = m["timing"]["firmware"]["max_period_us"] / 1e3
-    assert f["safe_state_ms"] is not None
-    assert f["safe_state_ms"] <= f["bound_ms"] + stall_ms + 3.0, (f, stall_ms)
+    stalls_ms = f["stalls_ms"]
+    assert set(stalls_ms) == {"plant", "mitm"} and None not in stalls_ms.values(), stalls_ms  # measured, no fallback
+    assert stalls_ms["plant"] == pytest.approx(m["timing"]["firmware"]["max_period_us"] / 1e3)
+    slack_ms = profile.late_allowance_s(*(v / 1e3 for v in stalls_ms.values())) * 1e3
+    assert f["tolerance_ms"] == pytest.approx(slack_ms)
+    assert f["safe_state_ms"] is not None and f["within_bound"], f
+    assert f["safe_state_ms"] <= f["bound_ms"] + slack_ms, f
     for axis in ("hip", "knee"):  # each driver went IDLE on its watchdog, before its heartbeat said so
         assert f["driver_idle_ms"][axis] is not None
-        assert f["driver_idle_ms"][axis] <= watchdog_ms + stall_ms + 3.0, (f, stall_ms)
+        assert f["driver_idle_ms"][axis] <= watchdog_ms + slack_ms, f
+        # the same instant on two clocks (the plant's monotonic wake-up, the heartbeat's kernel
+        # timestamp), each taken against the kill on its own clock: an order, not a duration
         assert f["driver_idle_ms"][axis] <= f["axes_idle_ms"][axis] + 5.0
     assert f["watchdog_trips_after_event"] == 2  # both axes stopped by their own watchdogs
     assert f["axes_after"] == {"hip": "IDLE", "knee": "IDLE"}

@@ -2,15 +2,15 @@
 
 The leg (firmware_sim.leg.SimulatedLeg) and bring-up share a python-can ``virtual`` bus; bring-up's
 clock is the leg's simulated time and its sleep steps the leg, so every run is deterministic and
-takes well under a second of wall time. Nothing here reads the wall clock except the CLI test of
-a silent bus, which bounds it generously.
+takes well under a second of wall time. Nothing here reads the wall clock: the command line's
+test of a silent bus gives bring-up a clock of its own too (a fake clock that moves only when
+slept on), and asserts the simulated seconds.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import time
 import uuid
 from dataclasses import replace
 from typing import Callable
@@ -137,23 +137,75 @@ def test_a_silent_bus_fails_fast_with_what_to_check():
     assert report.checklist.summary() == "0 passed, 1 failed"
 
 
-def test_the_command_fails_fast_on_a_silent_bus(capsys):
+def with_clock(monkeypatch, clock: FakeClock) -> list[dict]:
+    """The command line's bring-up on ``clock`` (the command passes none: the monotonic clock);
+    the keyword arguments of each call are kept."""
+    import controller.bringup.procedure as procedure
+
+    calls: list[dict] = []
+    original = procedure.run_bringup
+
+    def on_clock(bus, axes, **kw):
+        calls.append(kw)
+        return original(bus, axes, **{**kw, "clock": clock, "sleep": clock.sleep})
+
+    monkeypatch.setattr(procedure, "run_bringup", on_clock)
+    return calls
+
+
+def test_the_command_fails_fast_on_a_silent_bus(capsys, monkeypatch):
     from hil.cli import main
 
-    t0 = time.monotonic()
+    clock = FakeClock()
+    calls = with_clock(monkeypatch, clock)
     rc = main(["bringup", "--interface", "virtual", "--channel", f"silent-{uuid.uuid4().hex}"])
-    assert time.monotonic() - t0 < 5.0  # generous: the listen window is 1.5 s
     out = capsys.readouterr().out
+    assert len(calls) == 1 and "clock" not in calls[0]  # the command's own run, on the test's clock
     assert rc == 1
+    assert 1.5 <= clock.t_s <= 2.0  # simulated seconds: the listen window (1.5 s), then it stops
     assert "FAIL" in out and "no frame at all" in out and "0 passed, 1 failed" in out
 
 
-def test_the_command_exits_2_on_a_missing_config_and_3_without_a_bus(capsys, tmp_path):
+def test_the_command_exits_3_on_a_missing_or_bad_config(capsys, tmp_path):
     from hil.cli import main
 
-    assert main(["bringup", "--interface", "virtual", "--channel", "x", "--config", str(tmp_path / "none.toml")]) == 2
-    assert main(["bringup", "--interface", "no-such-interface", "--channel", "x"]) == 3
-    assert "cannot open the bus" in capsys.readouterr().err
+    missing = tmp_path / "none.toml"
+    assert main(["bringup", "--interface", "virtual", "--channel", "x", "--config", str(missing)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"elegant-stepping bringup: error: {missing}: cannot read the configuration: No such file or "
+                   "directory"]
+    deep = tmp_path / "deep.toml"
+    deep.write_text("[axes.hip]\nnode_id = " + "[" * 500 + "]" * 500 + "\n")
+    assert main(["bringup", "--interface", "virtual", "--channel", "x", "--config", str(deep)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{deep}: " in err[0] and "nested" in err[0] and "Traceback" not in err[0]
+
+
+def test_the_command_exits_4_in_one_line_when_the_bus_cannot_be_opened(capsys, tmp_path):
+    from controller.cli import main
+
+    assert main(["bringup", "--interface", "no-such-interface", "--channel", "x"]) == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("elegant-stepping-leg bringup: error: cannot open the CAN bus "
+                                               "(interface no-such-interface, channel x): "), err
+    assert main(["bringup", "--interface", "socketcan", "--channel", "can9"]) == 4  # no such device, or no SocketCAN
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "(interface socketcan, channel can9): [Errno " in err[0] and "Traceback" not in err[0]
+
+
+def test_a_report_path_that_cannot_be_written_is_refused_before_the_bus_is_opened(capsys, tmp_path, monkeypatch):
+    from controller.cli import main
+
+    opened = []
+    import controller.daemon.openbus as openbus
+
+    monkeypatch.setattr(openbus, "open_bus", lambda kw: opened.append(kw))
+    (tmp_path / "file").write_text("x")
+    for path, words in ((tmp_path, "is a folder"), (tmp_path / "file" / "r.json", "its folder cannot be made")):
+        assert main(["bringup", "--interface", "virtual", "--channel", "x", "--json", str(path)]) == 3
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"--json {path}: {words}" in err[0], err
+    assert opened == []  # refused before anything ran
 
 
 # -- the simulated leg -----------------------------------------------------------------------

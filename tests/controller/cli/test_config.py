@@ -78,7 +78,7 @@ def test_check_of_an_empty_file_for_can0_names_everything_missing(tmp_path, caps
     path = tmp_path / "empty.toml"
     path.write_text("# nothing yet\n")
     rc, out, err = run(capsys, "check", path)
-    assert rc == 2 and not out
+    assert rc == 3 and not out
     assert f"{path}: [bus]: missing; without it the bus is bus.interface = \"socketcan\", bus.channel = \"can0\"" in err
     for axis in ("hip", "knee"):
         assert (f"{path}: [axes.{axis}] node_id, gear_ratio, direction, zero_offset_rev, min_rad, max_rad: not given; "
@@ -91,7 +91,7 @@ def test_a_partial_file_for_a_real_bus_names_only_the_missing_keys(tmp_path, cap
     path = tmp_path / "partial.toml"
     path.write_text(re.sub(r"(?m)^zero_offset_rev = .*\n", "", text, count=1).replace("bitrate = 1000000", ""))
     rc, _, err = run(capsys, "check", path)
-    assert rc == 2
+    assert rc == 3
     assert f"{path}: [bus] bitrate: not given; on a real CAN bus (bus.interface = \"socketcan\", bus.channel = " \
            "\"can0\") the file must give its interface, channel, bitrate itself" in err
     assert f"{path}: [axes.hip] zero_offset_rev: not given" in err and "[axes.knee]" not in err
@@ -225,7 +225,7 @@ def test_confirm_refuses_in_one_line_and_leaves_the_file_alone(case, words, tmp_
         future = time.time() + 5
         os.utime(rep, (future, future))
     rc, out, err = run(capsys, "confirm", path, "--bringup", rep)
-    assert rc == 2 and not out
+    assert rc == 3 and not out
     lines = err.splitlines()
     assert len(lines) == 1 and lines[0].startswith("config confirm: refused: "), err
     for word in words:
@@ -238,7 +238,22 @@ def test_confirm_of_a_bad_configuration_names_its_problems(tmp_path, capsys):
     path = tmp_path / "empty.toml"
     path.write_text("")
     rc, out, err = run(capsys, "confirm", path, "--bringup", report(tmp_path))
-    assert rc == 2 and not out and "[bus]: missing" in err and not Path(f"{path}.bak").exists()
+    assert rc == 3 and not out and "[bus]: missing" in err and not Path(f"{path}.bak").exists()
+
+
+def test_confirm_that_cannot_write_the_file_is_one_line_exit_3(tmp_path, capsys, monkeypatch):
+    import controller.settings.file as settings_file
+
+    path = leg_file(tmp_path)
+    rep = report(tmp_path)
+
+    def denied(target, text):
+        raise PermissionError(13, "Permission denied", str(target))
+
+    monkeypatch.setattr(settings_file, "write_text_atomic", denied)  # as a user who is not root
+    rc, out, err = run(capsys, "confirm", path, "--bringup", rep)
+    assert rc == 3 and not out
+    assert err.splitlines() == [f"config confirm: {path}: cannot write it: Permission denied (as root: sudo)"]
 
 
 def test_confirm_needs_the_report_option(capsys):

@@ -19,8 +19,8 @@ import uuid
 import pytest
 
 from controller.cli import VERBS, main
-from controller.daemon.control import (MAX_REQUEST_BYTES, ControlError, ControlServer, ControlSocketError, parse_request,
-                                       request)
+from controller.daemon.control import (MAX_REQUEST_BYTES, ControlError, ControlPermissionError, ControlServer,
+                                       ControlSocketError, parse_request, request)
 
 
 @pytest.fixture
@@ -115,19 +115,48 @@ def test_requests_run_on_the_loops_thread_and_bad_ones_never_stop_the_server(sho
 
 
 def test_a_loop_that_does_not_take_the_request_in_2_s_is_daemon_busy_and_it_never_runs(short_dir):
+    """The connection waits for the loop with the server's ``wait``: here the test's, which says at
+    once that the reply timeout passed (no wall clock); the request asked for is withdrawn."""
     path = f"{short_dir}/c.sock"
-    server = ControlServer(path, reply_timeout_s=0.3).start()
+    waits: list[float] = []
+
+    def timed_out(event: threading.Event, timeout_s: float) -> bool:
+        waits.append(timeout_s)
+        return event.is_set()  # the loop never ran it: the timeout has passed
+
+    server = ControlServer(path, reply_timeout_s=0.3, wait=timed_out).start()
     ran = []
     try:
-        t0 = time.monotonic()
         out = request(path, "estop")
         assert out == {"ok": False, "verb": "estop", "refused": "daemon busy", "status": None}
-        assert 0.25 < time.monotonic() - t0 < 2.0
+        assert waits == [0.3]  # it waited for the loop once, as long as its reply timeout
         assert server.run_pending(lambda verb: ran.append(verb) or (None, {})) == 0
         assert ran == [] and server.busy == 1  # withdrawn: an estop answered "busy" never happens later
     finally:
         server.close()
     assert ControlServer(path).reply_timeout_s == 2.0
+    assert ControlServer(path).wait is threading.Event.wait  # the real one by default
+
+
+def test_a_request_the_loop_is_running_at_the_timeout_gets_its_reply(short_dir):
+    """Taken by the loop just as the reply timeout passed: the connection waits once more, and the
+    reply is the loop's, not "daemon busy"."""
+    path = f"{short_dir}/c.sock"
+    server: ControlServer
+
+    def loop_takes_it_at_the_timeout(event: threading.Event, timeout_s: float) -> bool:
+        if not event.is_set():
+            runner = threading.Thread(target=server.run_pending, args=(lambda verb: (None, {"phase": "walk"}),))
+            runner.start()
+            runner.join()
+        return event.is_set()
+
+    server = ControlServer(path, reply_timeout_s=0.3, wait=loop_takes_it_at_the_timeout).start()
+    try:
+        assert request(path, "status") == {"ok": True, "verb": "status", "refused": None, "status": {"phase": "walk"}}
+        assert server.busy == 0 and server.executed == 1
+    finally:
+        server.close()
 
 
 def test_stale_socket_removed_live_one_refused_other_files_untouched(short_dir):
@@ -171,9 +200,10 @@ def test_client_errors_are_one_line(short_dir, monkeypatch, capsys):
     with pytest.raises(ControlError) as exc:
         request(path, "status")
     assert str(exc.value) == f"no daemon at {path} (is it running? systemctl status elegant-stepping-controller)"
-    assert main(["arm", "--socket", path]) == 2
+    assert exc.value.exit_code == 4  # no daemon answers: the leg's link does not answer
+    assert main(["arm", "--socket", path]) == 4
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"elegant-stepping-leg arm: no daemon at {path} (is it running? systemctl status "
+    assert err == [f"elegant-stepping-leg arm: error: no daemon at {path} (is it running? systemctl status "
                    f"elegant-stepping-controller)"]
 
     server = ControlServer(f"{short_dir}/c.sock").start()
@@ -182,21 +212,80 @@ def test_client_errors_are_one_line(short_dir, monkeypatch, capsys):
             raise PermissionError(13, "Permission denied")
 
         monkeypatch.setattr(socket.socket, "connect", denied)
-        with pytest.raises(ControlError, match="permission denied on .*c.sock: commanding the leg needs the group "):
+        with pytest.raises(ControlPermissionError, match="permission denied on .*c.sock: commanding the leg needs "
+                                                         "the group ") as denied_exc:
             request(server.path, "status")
+        assert isinstance(denied_exc.value, ControlError) and denied_exc.value.exit_code == 3  # an input to fix
+        capsys.readouterr()
+        assert main(["status", "--socket", str(server.path)]) == 3
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"elegant-stepping-leg status: error: permission denied on "
+                                                   f"{server.path}: commanding the leg needs the group "), err
     finally:
         monkeypatch.undo()
         server.close()
 
 
+def test_a_daemon_that_never_replies_is_exit_4_after_the_timeout(short_dir, capsys):
+    path = f"{short_dir}/deaf.sock"
+    deaf = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)  # listens, never accepts: connect works, no reply
+    deaf.bind(path)
+    deaf.listen(1)
+    try:
+        assert main(["status", "--socket", path, "--timeout-s", "0.2"]) == 4
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"elegant-stepping-leg status: error: no reply from the daemon at {path} within 0.2 s"]
+    finally:
+        deaf.close()
+
+
+def test_a_bad_timeout_is_a_usage_error(short_dir, capsys):
+    for bad in ("0", "-1", "nan"):
+        with pytest.raises(SystemExit) as exc:
+            main(["status", "--socket", f"{short_dir}/c.sock", "--timeout-s", bad])
+        assert exc.value.code == 2 and "--timeout-s" in capsys.readouterr().err
+
+
 def test_the_socket_path_from_a_configuration_file(short_dir, tmp_path, capsys):
     config = tmp_path / "leg.toml"
     config.write_text(f'[bus]\ninterface = "virtual"\nchannel = "x"\n[service]\ncontrol_socket = "{short_dir}/cfg.sock"\n')
-    assert main(["status", "--config", str(config)]) == 2
+    assert main(["status", "--config", str(config)]) == 4
     assert f"no daemon at {short_dir}/cfg.sock" in capsys.readouterr().err
 
 
+def test_a_bad_or_missing_configuration_is_exit_3_naming_the_file(tmp_path, capsys):
+    missing = tmp_path / "none.toml"
+    assert main(["arm", "--config", str(missing)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"elegant-stepping-leg arm: error: {missing}: cannot read the configuration: No such file or "
+                   "directory"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[bus]\ninterface = \"virtual\"\nchannel = \"x\"\n[cpg]\nstance_s = 0\nburst_s = 9\n")
+    assert main(["status", "--config", str(bad)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and all(line.startswith(f"{bad}: cpg.") for line in err[:2]), err  # each problem, then one
+    assert err[-1] == (f"elegant-stepping-leg status: error: {bad}: 2 problems in the configuration (each on its "
+                       "own line above)")
+
+
 # -- the real daemon, in a thread, against a light simulated leg ------------------------------------
+OUTCOME_TIMEOUT_S = 30.0
+"""How long a test waits for an outcome of the threaded daemon (a phase, the drivers' errors) before
+it fails naming the outcome: generous, for a loaded machine; nothing here asserts how long anything
+took. Where a test needs "a while" it counts the daemon's own ticks."""
+
+
+def wait_for(outcome: str, done, timeout_s: float = OUTCOME_TIMEOUT_S, poll_s: float = 0.02):
+    """Poll ``done()`` until it is truthy (returned); fail naming ``outcome`` after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        got = done()
+        if got:
+            return got
+        assert time.monotonic() < deadline, f"not within {timeout_s:g} s: {outcome}"
+        time.sleep(poll_s)
+
+
 class Daemon:
     def __init__(self, path: str, **kw) -> None:
         from tests.controller.daemon.test_sdnotify import LightLeg
@@ -224,10 +313,12 @@ class Daemon:
     def __enter__(self) -> "Daemon":
         self.leg.start()
         self.thread.start()
-        deadline = time.monotonic() + 10
-        while not os.path.exists(self.path):
-            assert self.error is None and time.monotonic() < deadline, self.error
-            time.sleep(0.01)
+
+        def socket_made() -> bool:
+            assert self.error is None, self.error
+            return os.path.exists(self.path)
+
+        wait_for(f"the daemon's control socket {self.path}", socket_made)
         return self
 
     def __exit__(self, *exc) -> None:
@@ -235,14 +326,25 @@ class Daemon:
         self.thread.join(timeout=20)
         self.leg.close()
 
-    def wait_phase(self, phase: str, timeout_s: float = 10.0) -> dict:
-        deadline = time.monotonic() + timeout_s
-        while True:
+    def wait_phase(self, phase: str) -> dict:
+        seen: list[str] = []
+
+        def there():
             st = request(self.path, "status")["status"]
-            if st["phase"] == phase:
-                return st
-            assert time.monotonic() < deadline, st
-            time.sleep(0.05)
+            seen.append(st["phase"])
+            return st if st["phase"] == phase else None
+
+        return wait_for(f"phase {phase} (phases seen: {sorted(set(seen))})", there, poll_s=0.05)
+
+    def wait_ticks(self, n: int) -> dict:
+        """The status once the daemon's loop has ticked ``n`` more times (its clock, not the test's)."""
+        start = request(self.path, "status")["status"]["ticks"]
+
+        def ticked():
+            st = request(self.path, "status")["status"]
+            return st if st["ticks"] >= start + n else None
+
+        return wait_for(f"{n} more ticks of the daemon's loop", ticked)
 
 
 def test_the_daemon_starts_inactive_and_a_person_arms_estops_clears_and_disarms_it(short_dir, capsys):
@@ -252,8 +354,7 @@ def test_the_daemon_starts_inactive_and_a_person_arms_estops_clears_and_disarms_
     with Daemon(path) as d:
         st = d.wait_phase("inactive")
         assert st["lifecycle"] == "inactive" and st["arm_blocked"] is None
-        time.sleep(0.3)
-        assert request(path, "status")["status"]["phase"] == "inactive"  # it never arms by itself
+        assert d.wait_ticks(75)["phase"] == "inactive"  # it never arms by itself (75 ticks: 0.3 s of its clock)
         assert all(a.state is AxisState.IDLE for a in d.leg.axes)
 
         capsys.readouterr()
@@ -275,12 +376,10 @@ def test_the_daemon_starts_inactive_and_a_person_arms_estops_clears_and_disarms_
         assert "only from inactive" in capsys.readouterr().err
 
         assert main(["estop", "--socket", path]) == 0
-        st = d.wait_phase("fault", 2.0)
+        st = d.wait_phase("fault")
         assert st["fault_cause"] == "estop by operator" and st["lifecycle"] == "fault"
-        deadline = time.monotonic() + 3
-        while not all(int(a.errors) & AxisError.ESTOP_REQUESTED for a in d.leg.axes):
-            assert time.monotonic() < deadline
-            time.sleep(0.02)
+        wait_for("ESTOP_REQUESTED latched by both drivers",
+                 lambda: all(int(a.errors) & AxisError.ESTOP_REQUESTED for a in d.leg.axes))
         assert all(a.state is AxisState.IDLE for a in d.leg.axes)
 
         assert main(["arm", "--socket", path]) == 1  # a fault is latched
@@ -291,7 +390,7 @@ def test_the_daemon_starts_inactive_and_a_person_arms_estops_clears_and_disarms_
         assert main(["arm", "--socket", path]) == 0
         d.wait_phase("walk")
         assert main(["disarm", "--socket", path]) == 0
-        st = d.wait_phase("inactive", 1.0)
+        st = d.wait_phase("inactive")
         assert st["fault_cause"] == ""
     assert d.error is None and d.final is not None
     assert not os.path.exists(path)  # removed at exit
@@ -317,8 +416,7 @@ def test_an_unconfirmed_calibration_refuses_arm_with_the_reason(short_dir, capsy
         assert err == [f"elegant-stepping-leg arm: refused: {reason}"]
         assert main(["status", "--socket", path]) == 0
         assert "arming blocked: calibration not confirmed" in capsys.readouterr().out
-        time.sleep(0.2)
-        assert request(path, "status")["status"]["phase"] == "inactive"
+        assert d.wait_ticks(50)["phase"] == "inactive"  # the refused arm did not arm it later
     assert d.error is None
 
 

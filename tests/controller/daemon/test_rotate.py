@@ -1,5 +1,5 @@
 """Bounded disk: the daemon's records and ticks rotate (FILE the newest, FILE.1 ... FILE.<keep>),
-each file begins with the clock (and the current phase), and a restarted daemon rotates the
+each file begins with the format line and the clock (and the current phase), and a restarted daemon rotates the
 previous run's records instead of overwriting them."""
 
 from __future__ import annotations
@@ -49,6 +49,9 @@ def test_the_daemon_rotates_its_ticks_and_keeps_the_previous_runs_records(tmp_pa
                                                           "controller.ticks.1"]
     # the newest file is a whole run's records: clock, phase, final (what replay reads)
     newest, before = read_records(records), read_records(tmp_path / "controller.jsonl.1")
+    for part in (records, tmp_path / "controller.jsonl.1"):  # each part begins with the format line, then the clock
+        head, then = (json.loads(x) for x in part.read_text().splitlines()[:2])
+        assert head["kind"] == "format" and head["format"] == "controller-records" and then["kind"] == "clock"
     assert newest["clock"] and newest["final"][0]["ticks"] == second["ticks"]
     assert before["final"][0]["ticks"] == first["ticks"]
     assert all(p.stat().st_size <= 2000 + 8192 for p in tmp_path.glob("controller.ticks*"))

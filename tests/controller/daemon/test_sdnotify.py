@@ -2,9 +2,11 @@
 
 The fast tests listen on a datagram socket of their own (hil.dryrun.notify_listener) and check the
 messages, the ping period from WATCHDOG_USEC, WATCHDOG_PID, the abstract namespace, the no-op
-without NOTIFY_SOCKET and that nothing raises. One runs ``run_controller`` in this process
-against a light simulated leg (simulated ODrive axes on a fake plant, no PyBullet) on python-can's
-virtual bus. The end-to-end test (``vcan``) is the deployment dry run: the unit's own command line
+without NOTIFY_SOCKET and that nothing raises. Two run ``run_controller`` in this process against a
+light simulated leg (simulated ODrive axes on a fake plant, no PyBullet) on python-can's virtual
+bus, in lockstep: the daemon's clock is the leg's simulated time and its sleep steps the leg, so
+the ping times and gaps asserted are simulated seconds, exact on any machine (no wall clock). The
+end-to-end test (``vcan``) is the deployment dry run: the unit's own command line
 as a separate process, firmware-sim on vcan0 (inside User-Mode Linux where the kernel has no CAN),
 READY, regular pings and STOPPING after SIGTERM.
 """
@@ -36,7 +38,7 @@ def listener():
     lst.stop()
 
 
-def wait_messages(lst: NotifyListener, n: int, timeout_s: float = 2.0):
+def wait_messages(lst: NotifyListener, n: int, timeout_s: float = 10.0):
     deadline = time.monotonic() + timeout_s
     while len(lst.snapshot()) < n and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -132,16 +134,18 @@ def test_send_failures_are_counted_never_raised(caplog):
 
 
 def test_a_full_listener_does_not_block_the_sender():
+    """Never a wait: the socket is non-blocking, so a full queue is an error counted at once
+    (a blocking send would hang this test instead of failing an assert on how long it took)."""
     deaf = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)  # bound, never reads
     address = "@es-deaf-" + uuid.uuid4().hex[:8]
     deaf.bind(socket_address(address))
     try:
         n = Notifier({"NOTIFY_SOCKET": address})
-        t0 = time.monotonic()
+        assert n._sock.getblocking() is False and n._sock.gettimeout() == 0.0
         for _ in range(3000):
             n.status("x" * 200)
-        assert time.monotonic() - t0 < 2.0
         assert n.errors > 0 and n.sent > 0  # its queue filled: counted as errors, never a wait
+        assert n.sent + n.errors == 3000 and "BlockingIOError" in n.last_error
         n.close()
     finally:
         deaf.close()
@@ -186,8 +190,12 @@ def test_parse_fields():
 # -- run_controller in this process, against a light simulated leg on the virtual bus -----------
 class LightLeg(threading.Thread):
     """Simulated ODrive axes (hip node 0, knee node 1: the real firmware model) on a fake plant
-    of two inertias, and the sensor board, on python-can's virtual bus, stepped at 1 kHz of
-    wall-clock time (catching up when late)."""
+    of two inertias, and the sensor board, on python-can's virtual bus, stepped at 1 kHz: either
+    in lockstep (not started: :meth:`clock` and :meth:`sleep` are the daemon's clock and sleep, and
+    the daemon's sleep steps the leg), or as a thread on wall-clock time (started; catching up
+    when late) for the tests that need the daemon in a thread of its own."""
+
+    DT_S = 0.001
 
     def __init__(self, channel: str) -> None:
         super().__init__(name="light-leg", daemon=True)
@@ -207,22 +215,62 @@ class LightLeg(threading.Thread):
         board = SensorBoard(SensorBoardConfig(), FakeSensorSource(range_value=None), np.random.default_rng(0))
         self.host = NodeHost(self.bus, [*self.axes, board])
         self.halt = threading.Event()
+        self.steps = 0  # the leg's time is steps * DT_S: no drift from adding floats
+        self.hooks: list = []  # called with the time after each step (lockstep)
+
+    def clock(self) -> float:
+        """The leg's simulated time [s]: the daemon's monotonic clock in lockstep."""
+        return self.steps * self.DT_S
+
+    def step_until(self, t_s: float) -> None:
+        while self.steps * self.DT_S < t_s - 1e-9:
+            self.host.step(self.steps * self.DT_S, self.DT_S)
+            self.plant.step(self.DT_S)
+            self.steps += 1
+            for hook in self.hooks:
+                hook(self.clock())
+
+    def sleep(self, dt_s: float) -> None:
+        """The daemon's sleep in lockstep: the leg runs ``dt_s`` of its time."""
+        if dt_s < 0:
+            raise ValueError("sleep length must be non-negative")  # as time.sleep
+        self.step_until(self.clock() + dt_s)
 
     def run(self) -> None:
-        dt, t = 0.001, 0.0
         t0 = time.monotonic()
         while not self.halt.is_set():
-            now = time.monotonic() - t0
-            while t < now:
-                self.host.step(t, dt)
-                self.plant.step(dt)
-                t += dt
+            self.step_until(time.monotonic() - t0)
             time.sleep(0.001)
 
     def close(self) -> None:
         self.halt.set()
-        self.join(timeout=5)
+        if self.is_alive():
+            self.join(timeout=5)
         self.bus.shutdown()
+
+
+def record_notifications(monkeypatch, clock, listener: NotifyListener) -> list[tuple[float, dict[str, str]]]:
+    """Every notification the daemon hands to its socket, with ``clock()`` when it did (the
+    lockstep leg's time), as ``(t_s, fields)``. Each send waits until the listener (systemd) has
+    it: in lockstep the daemon runs faster than real time, and a listener thread that is not
+    scheduled for a moment would let the socket's queue (``net.unix.max_dgram_qlen``, 10) fill; a
+    real systemd is never 10 messages behind a daemon on the wall clock. Simulated time stands
+    still meanwhile, so nothing asserted depends on the wait."""
+    from controller.daemon.sdnotify import Notifier as RealNotifier
+
+    sent: list[tuple[float, dict[str, str]]] = []
+    original = RealNotifier.notify
+
+    def notify(self, **fields):
+        ok = original(self, **fields)
+        if ok:
+            sent.append((clock(), {k: str(v) for k, v in fields.items()}))
+            got = wait_messages(listener, len(sent))
+            assert len(got) >= len(sent), f"the listener never received {fields}"
+        return ok
+
+    monkeypatch.setattr(RealNotifier, "notify", notify)
+    return sent
 
 
 def test_run_controller_tells_systemd_ready_pings_and_stopping(listener, monkeypatch):
@@ -231,17 +279,19 @@ def test_run_controller_tells_systemd_ready_pings_and_stopping(listener, monkeyp
     from protocol import AxisState
 
     channel = f"sdnotify-{uuid.uuid4().hex}"
-    leg = LightLeg(channel)
-    leg.start()
+    leg = LightLeg(channel)  # in lockstep: the daemon's clock and sleep
     monkeypatch.setenv("NOTIFY_SOCKET", listener.address)
     monkeypatch.setenv("WATCHDOG_USEC", "200000")  # a ping every 0.1 s
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    sent = record_notifications(monkeypatch, leg.clock, listener)
+    config = ControllerConfig(auto_arm=True)
     try:
-        final = run_controller({"interface": "virtual", "channel": channel}, ControllerConfig(auto_arm=True),
-                               duration_s=3.0)
+        final = run_controller({"interface": "virtual", "channel": channel}, config, duration_s=3.0,
+                               clock=leg.clock, sleep=leg.sleep)
     finally:
         leg.close()
-    got = listener.snapshot()
+    got = wait_messages(listener, len(sent))
+    assert [m.fields for m in got] == [fields for _, fields in sent]  # each reached systemd's socket, in order
     ready = [m for m in got if m.has("READY", "1")]
     # auto_arm arms in the tick INACTIVE is reached: READY comes with ARMING's status
     assert len(ready) == 1 and ready[0].fields["STATUS"] in (phase_status(Phase.INACTIVE), phase_status(Phase.ARMING)), \
@@ -249,9 +299,12 @@ def test_run_controller_tells_systemd_ready_pings_and_stopping(listener, monkeyp
     statuses = [m.fields["STATUS"] for m in got if "STATUS" in m.fields]
     assert phase_status(Phase.ARMING) in statuses and "active: walking" in statuses
     assert not any(s.startswith("fault") for s in statuses), statuses
-    pings = [m.t_s for m in got if m.has("WATCHDOG", "1")]
-    assert len(pings) >= 15  # 3 s at 0.1 s: about 30 on a quiet machine
-    assert max(np.diff(pings)) < 0.2  # never as long as the watchdog limit: systemd would not kill it
+    pings = [t for t, fields in sent if fields == {"WATCHDOG": "1"}]
+    # from the first tick (one period after the start) to the last
+    assert pings[0] == pytest.approx(config.period_s) and pings[-1] > 3.0 - 0.1 - config.period_s
+    # every half of WATCHDOG_USEC, at the first tick due (simulated seconds, exact): never near the limit
+    assert max(np.diff(pings)) <= 0.1 + config.period_s + 1e-9 and min(np.diff(pings)) >= 0.1 - 1e-9
+    assert len(pings) == pytest.approx(3.0 / 0.1, abs=2)
     assert got[-1].has("STOPPING", "1") and all(m.pid == os.getpid() for m in got)
     assert final["stopped_by"] == "duration" and final["phase"] == "walk"
     assert final["sd_notify"]["errors"] == 0 and final["sd_notify"]["ready_sent"] is True
@@ -270,6 +323,8 @@ def test_a_stuck_loop_stops_pinging_the_drivers_stop_the_leg_and_fault_keeps_pin
     from controller.daemon.run import run_controller
     from protocol import AxisError, AxisState
 
+    channel = f"sdnotify-{uuid.uuid4().hex}"
+    leg = LightLeg(channel)  # in lockstep: the daemon's clock and sleep
     original = ControlLoop.tick
     stall: dict[str, float] = {}
 
@@ -278,30 +333,34 @@ def test_a_stuck_loop_stops_pinging_the_drivers_stop_the_leg_and_fault_keeps_pin
         if "from" not in stall and self.phase is Phase.WALK:
             stall.setdefault("walk", now_s)
             if now_s - stall["walk"] > 0.5:
-                stall["from"] = time.monotonic()
-                time.sleep(0.4)  # stuck
-                stall["to"] = time.monotonic()
+                stall["from"] = leg.clock()
+                leg.sleep(0.4)  # stuck: 0.4 s of the leg's time pass inside one tick
+                stall["to"] = leg.clock()
 
     monkeypatch.setattr(ControlLoop, "tick", tick)
-    channel = f"sdnotify-{uuid.uuid4().hex}"
-    leg = LightLeg(channel)
-    leg.start()
     monkeypatch.setenv("NOTIFY_SOCKET", listener.address)
     monkeypatch.setenv("WATCHDOG_USEC", "200000")
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    sent = record_notifications(monkeypatch, leg.clock, listener)
+    tripped: dict[str, float] = {}
+    leg.hooks.append(lambda t: tripped.setdefault("t", t) if "t" not in tripped and all(
+        int(a.errors) & AxisError.WATCHDOG_TIMER_EXPIRED for a in leg.axes) else None)
     try:
         final = run_controller({"interface": "virtual", "channel": channel}, ControllerConfig(auto_arm=True),
-                               duration_s=4.0)
+                               duration_s=4.0, clock=leg.clock, sleep=leg.sleep)
     finally:
         leg.close()
     assert "to" in stall, "the loop never walked"
-    got = listener.snapshot()
-    pings = [m.t_s for m in got if m.has("WATCHDOG", "1")]
-    assert not [t for t in pings if stall["from"] + 0.05 < t < stall["to"]]  # silent while stuck
-    assert any(b - a >= 0.35 for a, b in zip(pings, pings[1:]))  # longer than WATCHDOG_USEC/2: systemd would act
+    got = wait_messages(listener, len(sent))
+    assert [m.fields for m in got] == [fields for _, fields in sent]  # each reached systemd's socket, in order
+    pings = [t for t, fields in sent if fields == {"WATCHDOG": "1"}]
+    assert not [t for t in pings if stall["from"] < t < stall["to"]]  # silent while stuck
+    gap = max(b - a for a, b in zip(pings, pings[1:]))
+    assert gap >= 0.4 > 0.2  # longer than WATCHDOG_USEC: systemd would act
     assert all(int(a.errors) & AxisError.WATCHDOG_TIMER_EXPIRED for a in leg.axes)  # the drivers stopped the leg
+    assert stall["from"] < tripped["t"] <= stall["from"] + 0.1 + 0.01  # their 0.1 s watchdog, during the stall
     assert all(a.state is AxisState.IDLE for a in leg.axes)
-    fault = next(m for m in got if m.fields.get("STATUS", "").startswith("fault"))
-    assert fault.t_s >= stall["to"] - 0.01 and "closed loop" in fault.fields["STATUS"]
-    assert len([t for t in pings if t > fault.t_s]) >= 5  # alive and safe in FAULT: still pinging
+    t_fault, fault = next((t, f) for t, f in sent if f.get("STATUS", "").startswith("fault"))
+    assert t_fault >= stall["to"] and "closed loop" in fault["STATUS"]
+    assert len([t for t in pings if t > t_fault]) >= 5  # alive and safe in FAULT: still pinging
     assert final["phase"] == "fault" and got[-1].has("STOPPING", "1")

@@ -178,9 +178,10 @@ def test_a_weights_folder_that_is_not_writable_refuses_the_start(tmp_path):
 def test_the_command_line_refuses_an_unwritable_weights_folder_in_one_line(tmp_path, capsys):
     (tmp_path / "file").write_text("not a folder")
     assert main(["controller", "--interface", "virtual", "--channel", "x", "--socket", "none", "--seconds", "0.1",
-                 "--weights", str(tmp_path / "file" / "w.npz")]) == 2
+                 "--weights", str(tmp_path / "file" / "w.npz")]) == 3
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not writable" in err[0] and "Traceback" not in err[0]
+    assert err[0].startswith(f"elegant-stepping controller: error: the weights' folder {tmp_path / 'file'} ")
 
 
 def test_without_a_weights_file_nothing_is_loaded_or_saved(tmp_path):
@@ -189,12 +190,12 @@ def test_without_a_weights_file_nothing_is_loaded_or_saved(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
-def test_a_fault_without_a_signal_exits_1(tmp_path, capsys):
+def test_a_fault_at_the_end_of_seconds_is_a_safety_stop_exit_5(tmp_path, capsys):
     config = tmp_path / "c.toml"
     bus = virtual_bus()
     config.write_text(f'[bus]\ninterface = "virtual"\nchannel = "{bus["channel"]}"\n[controller]\nbringup_timeout_s = 0.1\n')
     assert main(["controller", "--interface", "virtual", "--channel", bus["channel"], "--config", str(config),
-                 "--socket", "none", "--seconds", "0.4", "--weights", str(tmp_path / "w.npz")]) == 1
+                 "--socket", "none", "--seconds", "0.4", "--weights", str(tmp_path / "w.npz")]) == 5
     final = json.loads(capsys.readouterr().err.strip().splitlines()[-1])
     assert final["phase"] == "fault" and final["stopped_by"] == "duration" and final["weights_saved"] is None
     assert not (tmp_path / "w.npz").exists()  # zeros never learned from: never written
@@ -211,11 +212,12 @@ def _start_daemon(tmp_path, fault: bool = False):
                              "--socket", "none"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
     wait_for = '"fault"' if fault else '"phase"'
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 60  # generous: an outcome waited for, not a duration asserted
     while not (records.exists() and wait_for in records.read_text()):  # ticking, handlers in place
         if proc.poll() is not None or time.monotonic() > deadline:
             proc.kill()
-            raise AssertionError(proc.communicate())
+            out, err = proc.communicate()
+            raise AssertionError(f"the daemon never recorded a {wait_for} phase (exit {proc.returncode}): {err[-2000:]}")
         time.sleep(0.05)
     return proc, path
 

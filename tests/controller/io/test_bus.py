@@ -186,6 +186,29 @@ def test_every_received_frame_is_accepted_or_dropped_under_one_named_reason():
     assert sensors.range_invalid == 2 and sensors.contacts_invalid == 1 and sensors.range_out_of_sequence == 1
 
 
+@pytest.mark.parametrize("name", ["Heartbeat", "Get_Encoder_Estimates", "SB_Range", "SB_Contacts", "SB_Heartbeat"])
+def test_a_can_fd_frame_on_one_of_our_ids_is_dropped_as_unknown_and_changes_nothing(name):
+    """Our bus is classic CAN: an FD frame (even one whose bytes would decode to a valid reading)
+    is not one of our frames, whatever its id."""
+    io, bus, (hip, _), sensors = make_io()
+    codec = contract.codec(name)
+    arb = contract.odrive_id(0, name) if codec.frame_id < 0x20 else codec.frame_id
+    payload = {"Heartbeat": (0, int(AxisState.CLOSED_LOOP_CONTROL), 0, 0), "Get_Encoder_Estimates": (0.5, 0.0),
+               "SB_Range": (1.0, 1, 0), "SB_Contacts": (1, 0, 0), "SB_Heartbeat": (0, 1, 1, 0.0)}[name]
+    good = data_frame(arb, codec.pack(*payload))
+    fd = can.Message(arbitration_id=arb, data=bytes(good.data), dlc=good.dlc, is_extended_id=False, is_fd=True,
+                     check=False)
+    before = (hip.state, hip.heartbeat_t_s, hip.encoder_t_s, sensors.range_t_s, sensors.contacts_t_s,
+              sensors.heartbeat_t_s)
+    bus.push(fd)
+    assert io.drain(1.0) == 0
+    assert io.dropped == {"unknown": 1} and not io.rx and frames_add_up(io)
+    assert (hip.state, hip.heartbeat_t_s, hip.encoder_t_s, sensors.range_t_s, sensors.contacts_t_s,
+            sensors.heartbeat_t_s) == before
+    bus.push(good)  # the same bytes as a classic frame are accepted
+    assert io.drain(1.1) == 1 and io.rx == {name: 1}
+
+
 def test_a_bad_heartbeat_changes_nothing():
     io, bus, (hip, _), _ = make_io()
     bus.push(heartbeat(0, AxisState.CLOSED_LOOP_CONTROL))

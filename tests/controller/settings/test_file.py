@@ -186,14 +186,108 @@ def _bound_cases():
                     yield section, s.key, (int(bound) if s.kind == "int" else float(bound))
 
 
+_SIMULATED_LEG = {"bus": {"channel": "vcan0"}}
+"""The base document of the bound cases: a simulated leg, where every default holds (a real bus
+needs its calibration in the file, test_every_default_is_in_its_range)."""
+
+_PARTNERS = {
+    # (setting, bound): the other settings that make a configuration holding that bound, where a
+    # cross-field check refuses it with the rest at their defaults.
+    ("bus.bitrate", 10000): {"controller.rate_hz": 10.0, "controller.heartbeat_period_s": 0.2,
+                             "drivers.watchdog_timeout_s": 0.5},  # the bus load, then what 10 Hz needs
+    ("controller.rate_hz", 10.0): {"controller.heartbeat_period_s": 0.2, "drivers.watchdog_timeout_s": 0.5},
+    ("controller.heartbeat_period_s", 0.001): {"controller.silence_periods": 10.0},
+    ("controller.silence_periods", 100.0): {"controller.stale_heartbeat_periods": 100.0,
+                                            "controller.heartbeat_period_s": 0.02},
+    ("controller.stale_heartbeat_periods", 1.0): {"controller.silence_periods": 1.0},
+    ("axes.knee.node_id", 0): {"axes.hip.node_id": 1},
+    ("drivers.watchdog_timeout_s", 0.005): {"controller.rate_hz": 600.0},
+    ("cpg.burst_s", 0.05): {"cpg.burst_min_s": 0.05},
+    ("cpg.burst_s", 5.0): {"cpg.burst_max_s": 5.0},
+    ("cpg.burst_min_s", 5.0): {"cpg.burst_max_s": 5.0, "cpg.burst_s": 5.0},
+    ("cpg.burst_max_s", 0.05): {"cpg.burst_min_s": 0.05, "cpg.burst_s": 0.05},
+    ("gait.stance_press_m", 0.05): {"geometry.shank_m": 0.26},
+    ("geometry.thigh_m", 0.01): {"geometry.shank_m": 0.5},
+    ("geometry.shank_m", 0.01): {"geometry.thigh_m": 0.5},
+    ("geometry.hip_height_m", 4.0): {"geometry.thigh_m": 2.0, "geometry.shank_m": 2.0},
+    ("encoder.max_range_m", 0.01): {"encoder.cell_width_m": 0.01},
+    ("encoder.max_range_m", 10.0): {"range_filter.max_range_m": 10.0},
+    ("range_filter.max_range_m", 0.01): {"encoder.max_range_m": 0.01, "encoder.cell_width_m": 0.01},
+}
+
+_UNREACHABLE = {
+    # (setting, bound): why no configuration holds it (a cross-field check refuses every one), in
+    # words the refusal must hold.
+    ("controller.rate_hz", 5000.0): "over 70% of the bus",  # at most about 1300 Hz on a 1 Mbit/s bus
+    ("controller.heartbeat_period_s", 10.0): "the node-silence timeout",  # at least 10 s, over the 2 s allowed
+    ("axes.hip.min_rad", math.tau): "must be below",  # max_rad cannot exceed 2 pi
+    ("axes.hip.max_rad", -math.tau): "must be below",
+    ("axes.knee.min_rad", math.tau): "must be below",
+    ("axes.knee.max_rad", -math.tau): "must be below",
+    # min_bus_voltage_v must be below max_bus_voltage_v (HealthConfig), both in [0, 100] V
+    ("health.min_bus_voltage_v", 100.0): "health.max_bus_voltage_v",
+    ("health.max_bus_voltage_v", 0.0): "health.min_bus_voltage_v",
+}
+
+
+def _document(values: dict) -> dict:
+    """A parsed TOML document: the simulated leg plus ``values`` (dotted setting -> value)."""
+    data = {section: dict(table) for section, table in _SIMULATED_LEG.items()}
+    for dotted, value in values.items():
+        section, key = dotted.rsplit(".", 1)
+        if section.startswith("axes."):
+            data.setdefault("axes", {}).setdefault(section[5:], {})[key] = value
+        else:
+            data.setdefault(section, {})[key] = value
+    return data
+
+
+def _built_value(cfg: DeployConfig, dotted: str):
+    """The value of ``dotted`` in a built configuration (its dataclasses, not its tables)."""
+    section, key = dotted.rsplit(".", 1)
+    if section.startswith("axes."):
+        return getattr(cfg.controller.axis(section[5:]), key)
+    if section == "controller":
+        return getattr(cfg.controller, key)
+    if section in MODEL:
+        return getattr(getattr(cfg.controller, section), key)
+    return getattr(getattr(cfg, section), key)
+
+
 @pytest.mark.parametrize("section,key,value", list(_bound_cases()))
 def test_the_schema_is_never_looser_than_the_dataclasses(section, key, value):
     """Every value the schema's field and cross-field checks accept builds its dataclasses (whose
-    own checks would report it less clearly): here each bound of each range, the rest default."""
-    data = {"axes": {section.split(".")[1]: {key: value}}} if section.startswith("axes.") else {section: {key: value}}
-    tables, problems = validate_tables(data)
-    if not problems:  # (else a cross-field check refused it, by name)
-        _build(tables)
+    own checks would report it less clearly): here each bound of each range, on a simulated leg
+    with the rest default, or with the partner settings a cross-field check asks for
+    (:data:`_PARTNERS`), is accepted and built, and the built dataclasses hold it. A bound no
+    configuration can hold (:data:`_UNREACHABLE`) is refused naming it and why. No case passes
+    without building or checking a refusal."""
+    dotted = f"{section}.{key}"
+    case = (dotted, value)
+    if case in _UNREACHABLE:
+        _, problems = validate_tables(_document({dotted: value}))
+        assert problems and all(dotted in p for p in problems), problems
+        assert any(_UNREACHABLE[case] in p for p in problems), problems
+        return
+    partners = _PARTNERS.get(case, {})
+    if partners:  # the partners are needed: without them a cross-field check refuses the bound, by name
+        _, problems = validate_tables(_document({dotted: value}))
+        assert problems and all(dotted in p for p in problems), problems
+    tables, problems = validate_tables(_document({**partners, dotted: value}))
+    assert problems == []
+    cfg = _build(tables)
+    assert _built_value(cfg, dotted) == value and type(_built_value(cfg, dotted)) is type(value)
+    for other, v in partners.items():
+        assert _built_value(cfg, other) == v
+
+
+def test_the_bound_cases_cover_every_range_and_their_tables_name_real_cases():
+    """Every partner and unreachable entry is one of the bound cases (a renamed or moved setting
+    cannot leave a stale entry that silently stops applying)."""
+    cases = {(f"{section}.{key}", value) for section, key, value in _bound_cases()}
+    assert set(_PARTNERS) <= cases and set(_UNREACHABLE) <= cases
+    assert not set(_PARTNERS) & set(_UNREACHABLE)
+    assert len(cases) == len(list(_bound_cases()))  # no bound listed twice
 
 
 def test_every_default_is_in_its_range():
@@ -303,10 +397,10 @@ def test_every_section_has_a_bad_value_case():
 
 
 @pytest.mark.parametrize("dotted,literal,words", BAD, ids=[f"{d}={v}" for d, v, _ in BAD])
-def test_a_bad_value_exits_2_naming_the_field_its_unit_and_range(dotted, literal, words, tmp_path, capsys):
+def test_a_bad_value_exits_3_naming_the_field_its_unit_and_range(dotted, literal, words, tmp_path, capsys):
     path = write(tmp_path, _file(dotted, literal))
     rc, out, err = check(capsys, path)
-    assert rc == 2 and not out
+    assert rc == 3 and not out
     line = next(x for x in err.splitlines() if dotted in x)
     assert line.startswith(f"{path}: {dotted} = ")
     for word in words:
@@ -330,7 +424,7 @@ TYPES = [
 @pytest.mark.parametrize("dotted,literal,words", TYPES, ids=[f"{d}={v}" for d, v, _ in TYPES])
 def test_a_wrong_type_is_an_error_naming_the_field(dotted, literal, words, tmp_path, capsys):
     rc, _, err = check(capsys, write(tmp_path, _file(dotted, literal)))
-    assert rc == 2
+    assert rc == 3
     line = next(x for x in err.splitlines() if dotted in x)
     for word in words:
         assert word in line, line
@@ -347,29 +441,78 @@ def test_a_wrong_type_is_an_error_naming_the_field(dotted, literal, words, tmp_p
 ])
 def test_unknown_keys_and_sections_are_errors_listing_the_known_ones(text, words, tmp_path, capsys):
     rc, _, err = check(capsys, write(tmp_path, text))
-    assert rc == 2
+    assert rc == 3
     for word in words:
         assert word in err, err
 
 
 def test_a_missing_file_or_a_folder_is_a_clear_error(tmp_path, capsys):
     rc, _, err = check(capsys, tmp_path / "nope.toml")
-    assert rc == 2 and f"{tmp_path / 'nope.toml'}: cannot read the configuration: No such file" in err
+    assert rc == 3 and f"{tmp_path / 'nope.toml'}: cannot read the configuration: No such file" in err
     rc, _, err = check(capsys, tmp_path)
-    assert rc == 2 and "cannot read the configuration" in err
+    assert rc == 3 and "cannot read the configuration" in err
     (tmp_path / "bin.toml").write_bytes(b"[bus]\nchannel = \"\xff\"\n")
     rc, _, err = check(capsys, tmp_path / "bin.toml")
-    assert rc == 2 and "not UTF-8" in err
+    assert rc == 3 and "not UTF-8" in err
 
 
 def test_malformed_toml_names_the_line(tmp_path, capsys):
     path = write(tmp_path, "[bus]\nchannel = \"can0\"\nbitrate = 1000000 bit/s\n")
     rc, _, err = check(capsys, path)
-    assert rc == 2 and f"{path}: not valid TOML" in err and "line 3" in err and "'bitrate = 1000000 bit/s'" in err
+    assert rc == 3 and f"{path}: not valid TOML" in err and "line 3" in err and "'bitrate = 1000000 bit/s'" in err
     rc, _, err = check(capsys, write(tmp_path, "[bus]\nbitrate = 1000000\nbitrate = 500000\n"))
-    assert rc == 2 and "line 3" in err
+    assert rc == 3 and "line 3" in err
     rc, _, err = check(capsys, write(tmp_path, '{"rate_hz": 500}', "old.json"))
-    assert rc == 2 and "looks like JSON" in err
+    assert rc == 3 and "looks like JSON" in err
+
+
+@pytest.mark.parametrize("depth", [20, 400, 500, 5000])
+@pytest.mark.parametrize("shape", ["array", "table"])
+def test_a_document_nested_hundreds_deep_is_one_line_naming_the_file_exit_3(depth, shape, tmp_path, capsys):
+    """tomllib raises RecursionError near 500 levels, and validation recursed on what it could parse
+    (a RecursionError between 350 and 475): both are now one problem naming the file."""
+    value = "[" * depth + "]" * depth if shape == "array" else "{a=" * depth + "1" + "}" * depth
+    path = write(tmp_path, f"[controller]\nrate_hz = {value}\n")
+    rc, out, err = check(capsys, path)
+    lines = err.strip().splitlines()
+    assert rc == 3 and not out and "Traceback" not in err and "RecursionError" not in err
+    assert len(lines) == 2 and lines[0].startswith(f"{path}: ") and "nested" in lines[0], err
+    assert len(lines[0]) < 400  # the value is not quoted whole
+    assert lines[1] == f"config check: {path}: 1 problem"
+    with pytest.raises(ConfigError, match="nested"):
+        load_config(path)
+
+
+def test_the_daemon_refuses_a_deeply_nested_file_in_one_line_exit_3(tmp_path, capsys):
+    path = write(tmp_path, "x = " + "[" * 500 + "]" * 500 + "\n")
+    assert main(["controller", "--interface", "virtual", "--channel", "x", "--config", str(path)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"elegant-stepping controller: error: {path}: ") and "nested" in err[0]
+
+
+def test_an_integer_python_will_not_convert_is_a_toml_problem(tmp_path, capsys):
+    path = write(tmp_path, "[controller]\nrate_hz = " + "9" * 5000 + "\n")
+    rc, _, err = check(capsys, path)
+    assert rc == 3 and f"{path}: not valid TOML" in err and "4300" in err and "Traceback" not in err
+
+
+def test_config_errors_are_input_errors_exit_3():
+    from controller.errors import EXIT_INPUT, InputError
+    from controller.settings.file import ConfirmRefused
+
+    assert issubclass(ConfigError, InputError) and issubclass(ConfigError, ValueError)
+    assert ConfigError(["x"]).exit_code == EXIT_INPUT and ConfirmRefused("no").exit_code == EXIT_INPUT
+    two = ConfigError(["a = 1: bad", "b = 2: bad"], "leg.toml")
+    import io
+
+    stream = io.StringIO()
+    one = two.reported(stream)
+    assert stream.getvalue().splitlines() == ["leg.toml: a = 1: bad", "leg.toml: b = 2: bad"]
+    assert isinstance(one, InputError)
+    assert str(one) == "leg.toml: 2 problems in the configuration (each on its own line above)"
+    single = ConfigError(["a = 1: bad"], "leg.toml")
+    stream = io.StringIO()
+    assert single.reported(stream) is single and stream.getvalue() == ""
 
 
 CROSS = [
@@ -397,7 +540,7 @@ CROSS = [
 @pytest.mark.parametrize("text,words", CROSS, ids=[c[1][0][:40] for c in CROSS])
 def test_cross_field_errors(text, words, tmp_path, capsys):
     rc, _, err = check(capsys, write(tmp_path, text))
-    assert rc == 2
+    assert rc == 3
     for word in words:
         assert word in err, err
 
@@ -407,7 +550,7 @@ def test_every_problem_in_a_file_is_reported_at_once(tmp_path, capsys):
             "[learner]\nlearning = \"yes\"\nfoo = 1\n")
     rc, _, err = check(capsys, write(tmp_path, text))
     lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 9, err  # eight problems, one per line, and the count
+    assert rc == 3 and len(lines) == 9, err  # eight problems, one per line, and the count
     assert lines[-1].endswith("8 problems")
     # on can0 (the default channel) the file must also give [bus] interface, channel and every calibration key
     assert sum("not given; on a real CAN bus" in x for x in lines) == 3
@@ -415,8 +558,8 @@ def test_every_problem_in_a_file_is_reported_at_once(tmp_path, capsys):
         assert any(dotted in x for x in lines), dotted
 
 
-def test_config_show_of_a_bad_file_exits_2(tmp_path, capsys):
-    assert main(["config", "show", str(write(tmp_path, "[cpg]\nstance_s = 0\n"))]) == 2
+def test_config_show_of_a_bad_file_exits_3(tmp_path, capsys):
+    assert main(["config", "show", str(write(tmp_path, "[cpg]\nstance_s = 0\n"))]) == 3
     out = capsys.readouterr()
     assert not out.out and "cpg.stance_s = 0: must be in [0.05, 5] s" in out.err
 
@@ -452,7 +595,8 @@ def test_the_daemon_reads_its_bus_weights_and_controller_from_the_toml_file(tmp_
     path = write(tmp_path, f"[bus]\ninterface = \"virtual\"\nchannel = \"{channel}\"\n"
                            "[controller]\nbringup_timeout_s = 0.1\n[weights]\npath = \"w.npz\"\n"
                            "[service]\ncontrol_socket = \"c.sock\"\n")
-    assert main(["controller", "--config", str(path), "--seconds", "0.4"]) == 1  # no leg: bring-up times out
+    # no leg: bring-up times out; a FAULT at the end of --seconds is a safety stop
+    assert main(["controller", "--config", str(path), "--seconds", "0.4"]) == 5
     final = json.loads(capsys.readouterr().err.strip().splitlines()[-1])
     assert final["phase"] == "fault"  # [controller] bringup_timeout_s, on the [bus] given (no bus arguments)
     assert final["control"]["socket"] == str(tmp_path / "c.sock")  # [service] control_socket, beside the file
@@ -463,7 +607,7 @@ def test_the_daemon_reads_its_bus_weights_and_controller_from_the_toml_file(tmp_
 
 def test_the_daemon_refuses_a_bad_file_naming_the_field(tmp_path, capsys):
     path = write(tmp_path, "[axes.knee]\ngear_ratio = -6\n")
-    assert main(["controller", "--interface", "virtual", "--channel", "x", "--config", str(path)]) == 2
+    assert main(["controller", "--interface", "virtual", "--channel", "x", "--config", str(path)]) == 3
     assert "axes.knee.gear_ratio = -6: must be in [0.1, 1000] rev/rev" in capsys.readouterr().err
 
 

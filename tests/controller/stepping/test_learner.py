@@ -82,7 +82,7 @@ def test_weights_file_round_trips_without_pickle(tmp_path):
     save_weights(path, w, 0.04)
     assert np.array_equal(load_weights(path, 75, 0.04), w)
     with np.load(path, allow_pickle=False) as data:
-        assert set(data.files) == {"weights", "cell_width_m", "schema_version", "checksum"}
+        assert set(data.files) == {"weights", "cell_width_m", "schema_version", "checksum", "project_version"}
     assert not list(tmp_path.glob("*.tmp"))
 
 

@@ -63,3 +63,23 @@ def test_decode_load_prints_json(tmp_path, capsys):
     assert main(["decode", str(path), "--load"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["frames"] == 101 and 0.0 < out["fraction"] < 0.05
+
+
+def test_a_damaged_log_is_refused_unless_partial_then_the_valid_frames_are_measured(tmp_path):
+    from controller.errors import InputError
+
+    path = tmp_path / "bus.log"
+    msgs = write_log(path, frames_per_s=100.0, seconds=1.0)
+    lines = path.read_text().splitlines()
+    lines.insert(60, "(1000.6) vcan0 hi")  # a junk line after 60 frames
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"bus.log: damaged at line 61: .*the 60 frames before it are valid"):
+        bus_load_from_log(path)
+    warned = []
+    load = bus_load_from_log(path, partial=True, warn=warned.append)
+    assert load["frames"] == 60 and load["partial"] == {"frames_read": 60, "stopped_at": "line 61",
+                                                         "reason": load["partial"]["reason"]}
+    assert load["span_s"] == pytest.approx(msgs[59].timestamp - msgs[0].timestamp, abs=1e-5)
+    assert warned == [f"{path}: read 60 frames, stopped at line 61: {load['partial']['reason']}"]
+    write_log(tmp_path / "whole.log", frames_per_s=100.0, seconds=1.0)
+    assert bus_load_from_log(tmp_path / "whole.log")["partial"] is None

@@ -236,7 +236,7 @@ def test_figures_command_lists_what_it_wrote(tmp_path, capsys):
     assert main(["figures", str(folder), "--out", str(tmp_path / "figs")]) == 0
     listed = json.loads(capsys.readouterr().out)
     assert {"learning_curve_seeds", "foot_trajectories", "burst_over_approach"} <= listed.keys()
-    assert main(["figures", str(tmp_path / "nothing"), "--out", str(tmp_path / "figs")]) == 2
+    assert main(["figures", str(tmp_path / "nothing"), "--out", str(tmp_path / "figs")]) == 3  # input: exit 3
     assert "no metrics.json" in capsys.readouterr().err
 
 

@@ -5,7 +5,10 @@ from __future__ import annotations
 import copy
 import json
 
-from hil.analysis.records import compare, read
+import pytest
+
+from controller.errors import InputError, stamp
+from hil.analysis.records import compare, first_difference, read
 from hil.cli import main
 
 
@@ -41,6 +44,47 @@ def test_the_verb_exits_0_same_1_different_2_unreadable(tmp_path, capsys):
     assert main(["compare", str(tmp_path / "a"), str(tmp_path / "a" / "metrics.json")]) == 0
     assert main(["compare", str(tmp_path / "a"), str(tmp_path / "b.json")]) == 1
     assert "first difference: .trials[0].footfalls_m[0]: 0.1 vs 0.2" in capsys.readouterr().err
-    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "bad.json")]) == 2
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "bad.json")]) == 3
     err = capsys.readouterr().err
     assert "not valid JSON" in err and "Traceback" not in err
+
+
+def test_stamps_are_not_records_so_a_stamped_run_equals_one_of_before_stamps(tmp_path):
+    old = _run(0.1)
+    new = {**stamp("learn-metrics", 1), **_run(0.1)}
+    new["project_version"] = "9.9.9"
+    assert compare(old, new)["same"] is True
+    walk = {"steps": 3, "t_s": [0.0, 0.5]}
+    assert compare(walk, {**stamp("walk", 1), **walk})["same"] is True
+    assert compare(walk, {**walk, "steps": 4})["first_difference"] == ".steps: 3 vs 4"
+
+
+def test_nan_is_the_same_record_and_the_sign_of_zero_is_not():
+    a = _run(0.1)
+    a["trials"][1]["gated_range_m"] = [float("nan"), 1.0]
+    b = copy.deepcopy(a)
+    assert compare(a, b)["same"] is True
+    b["trials"][1]["gated_range_m"][1] = 1  # an int is not the float 1.0 that was written
+    assert compare(a, b)["differing_trials"] == [1]
+    assert first_difference(0.0, -0.0, "x") == "x: 0.0 vs -0.0"
+
+
+@pytest.mark.parametrize("data,words", [
+    ({**stamp("learn-metrics", 5), **_run(0.1)}, "learn-metrics format version 5"),
+    ({"config": {}, "trials": "all of them", "summary": {}}, "'trials' is a str"),
+    ([1, 2], "not a learn-metrics file"),
+])
+def test_a_learn_folder_of_an_unknown_version_or_structure_is_refused(tmp_path, capsys, data, words):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "metrics.json").write_text(json.dumps(data))
+    with pytest.raises(InputError, match="metrics.json"):
+        read(tmp_path / "a")
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "a")]) == 3
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err
+
+
+def test_a_json_file_with_trials_that_are_not_a_list_is_refused(tmp_path):
+    (tmp_path / "x.json").write_text(json.dumps({"trials": 3}))
+    with pytest.raises(InputError, match="x.json: 'trials' is a int"):
+        read(tmp_path / "x.json")

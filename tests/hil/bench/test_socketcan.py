@@ -9,7 +9,9 @@ sanity.
 from __future__ import annotations
 
 import json
+import subprocess
 from array import array
+from pathlib import Path
 
 import pytest
 
@@ -109,8 +111,60 @@ def test_without_vcan_the_hil_section_says_so_and_only_hil_fails(monkeypatch, tm
     monkeypatch.setattr(uml, "where", nowhere)
     out = tmp_path / "b.json"
     assert main(["bench", "--json", str(out)]) == 0
-    h = json.loads(out.read_text())["hil"]
+    written = json.loads(out.read_text())
+    assert list(written)[:3] == ["format", "format_version", "project_version"]  # the stamp comes first
+    assert written["format"] == "bench" and written["format_version"] == 1 and written["project_version"]
+    h = written["hil"]
     assert h["available"] is False and h["ran"] is False and "user-mode-linux" in h["install"]
     assert main(["bench", "--hil", "--hil-seconds", "1", "--json", str(out)]) != 0
     h = json.loads(out.read_text())["hil"]
     assert h["available"] is False and "apt-get install -y user-mode-linux kmod" in h["error"] + h["install"]
+
+
+def test_the_session_file_is_stamped_and_read_back_without_the_stamp(tmp_path):
+    from hil.bench.socketcan import SESSION_KIND, read_session, write_session
+
+    path = tmp_path / "hil.json"
+    write_session(path, {"available": True, "started_unix": 1.5})
+    raw = json.loads(path.read_text())
+    assert raw["format"] == SESSION_KIND == "bench-hil" and raw["format_version"] == 1 and raw["project_version"]
+    assert read_session(path) == {"available": True, "started_unix": 1.5}
+
+
+@pytest.mark.parametrize("content,words", [
+    ({"format": "bench-hil", "format_version": 99, "project_version": "9.9"}, ["format version 99", "9.9"]),
+    ({"format": "walk", "format_version": 1}, ["'walk' file", "not a bench-hil file"]),
+    ({"available": True}, ["no 'format' stamp"]),
+    ("[1, 2]", ["a JSON object expected"]),
+    ("{truncated", ["not JSON"]),
+])
+def test_a_session_file_of_another_kind_or_version_is_refused_in_one_line(tmp_path, content, words):
+    from controller.errors import InputError
+    from hil.bench.socketcan import read_session
+
+    path = tmp_path / "hil.json"
+    path.write_text(content if isinstance(content, str) else json.dumps(content))
+    with pytest.raises(InputError) as info:
+        read_session(path)
+    msg = str(info.value)
+    assert "\n" not in msg and str(path) in msg and all(w in msg for w in words), msg
+
+
+def test_bench_hil_from_user_mode_linux_refuses_a_session_file_of_another_version(monkeypatch):
+    """The host's side reads what the VM wrote; a file of an unknown version gives no figures and
+    one line saying why, never a misread."""
+    import hil.profile
+    import hil.uml.runner as uml
+    from hil.bench.socketcan import run_hil_bench
+
+    def fake_uml(argv, timeout_s, capture):  # noqa: ARG001
+        out = argv[argv.index("--out") + 1]
+        Path(out).write_text(json.dumps({"format": "bench-hil", "format_version": 99, "available": True}))
+        return subprocess.CompletedProcess(argv, 0, stdout="", stderr="")
+
+    monkeypatch.setattr(uml, "where", lambda mode="auto", channel="vcan0": "uml")
+    monkeypatch.setattr(uml, "run_in_uml", fake_uml)
+    monkeypatch.setattr(hil.profile, "current", lambda: hil.profile.NATIVE)
+    h = run_hil_bench(1.0)
+    assert h["available"] is False and h["ran"] is False and h["where"] == "uml"
+    assert "format version 99" in h["error"] and "\n" not in h["error"]

@@ -58,15 +58,25 @@ def test_learn_command_writes_metrics_and_weights(tmp_path, capsys):
     with np.load(out / "weights.npz", allow_pickle=False) as data:
         assert data["weights"].shape == (28,) and float(data["cell_width_m"]) == 0.04
     assert "wrote" in capsys.readouterr().out
+    assert main(["learn", "--trials", "2", "--seed", "1", "--out", str(out), "--quiet", "--obstacle-height-m", "0.07",
+                 "--range-noise-m", "0.01"]) == 0  # the same command again: finished, nothing runs
+    assert "already holds this finished run" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv,match", [
-    (["--obstacle-height-m", "0.02"], "obstacle_height_m"),
-    (["--trials", "0"], "trials"),
+@pytest.mark.parametrize("argv,code,match", [
+    (["--obstacle-height-m", "0.02"], 3, "obstacle_height_m"),  # an invalid configuration: input
+    (["--trials", "0"], 2, "argument --trials"),  # a malformed option: usage, argparse names it
+    (["--seed", "-5"], 2, "argument --seed"),
 ])
-def test_bad_learn_arguments_get_a_clear_error(tmp_path, capsys, argv, match):
-    assert main(["learn", "--out", str(tmp_path / "x"), "--quiet", *argv]) == 2
-    assert match in capsys.readouterr().err
+def test_bad_learn_arguments_get_a_clear_error(tmp_path, capsys, argv, code, match):
+    try:
+        got = main(["learn", "--out", str(tmp_path / "x"), "--quiet", *argv])
+    except SystemExit as exc:  # argparse's usage error
+        got = exc.code
+    assert got == code
+    err = capsys.readouterr().err
+    assert match in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()  # refused before anything was written
 
 
 def test_analyze_reads_learn_folders_and_refuses_others(tmp_path, capsys):
@@ -75,5 +85,5 @@ def test_analyze_reads_learn_folders_and_refuses_others(tmp_path, capsys):
     assert main(["analyze", str(out), "--json", str(tmp_path / "a.json")]) == 0
     figures = json.loads((tmp_path / "a.json").read_text())
     assert figures["runs"][0]["trials"] == 2 and len(figures["footfall_std_m_by_steps_before"]) == 4
-    assert main(["analyze", str(tmp_path / "nothing")]) == 2
+    assert main(["analyze", str(tmp_path / "nothing")]) == 3
     assert "no metrics.json" in capsys.readouterr().err

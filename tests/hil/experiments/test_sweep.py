@@ -76,7 +76,9 @@ def test_bad_config_names_the_field(tmp_path, kwargs, field):
     (["--methods", "paper,magic"], "methods"), (["--trials", "0"], "trials"),
 ])
 def test_bad_sweep_arguments_get_a_clear_error(tmp_path, capsys, argv, field):
-    assert main(["sweep", "--out", str(tmp_path / "s"), "--quiet", *argv]) == 2
+    with pytest.raises(SystemExit) as exc:  # argparse's usage error names the option
+        main(["sweep", "--out", str(tmp_path / "s"), "--quiet", *argv])
+    assert exc.value.code == 2
     assert field in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
 
@@ -178,42 +180,111 @@ def test_headline_table_sentences_and_figures_come_from_the_rows(tmp_path):
 
 
 def test_report_only_on_a_folder_that_is_not_a_sweep(tmp_path, capsys):
-    assert main(["sweep", "--out", str(tmp_path), "--report-only"]) == 2
+    assert main(["sweep", "--out", str(tmp_path), "--report-only"]) == 3
     assert "config.json" in capsys.readouterr().err
 
 
 # ---- real runs (small) -----------------------------------------------------------------------------------------
 
 
-def test_a_second_run_runs_nothing_and_a_corrupt_or_mismatched_cell_runs_again(tmp_path, caplog, capsys):
+def test_a_second_run_runs_nothing_and_a_damaged_or_mismatched_cell_is_refused_and_kept(tmp_path, caplog, capsys):
     out = tmp_path / "sweep"
     argv = ["sweep", "--out", str(out), "--seeds", "0", "--obstacle-heights-m", "0.07", "--methods", "paper,none",
             "--trials", "2", "--workers", "2", "--quiet"]
     assert main(argv) == 0
-    summary = (out / "summary.json").read_text()
-    rows = json.loads(summary)
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["format"], summary["format_version"]) == ("sweep-summary", 1)
+    rows = summary["rows"]
     assert [(r["method"], r["seed"], r["trials"]) for r in rows] == [("paper", 0, 2), ("none", 0, 2)]
     timing = json.loads((out / "timing.json").read_text())
+    assert timing["format"] == "sweep-timing"
+    assert json.loads((out / "config.json").read_text())["format"] == "sweep-config"
     assert [c["status"] for c in timing["cells"]] == ["ran", "ran"] and timing["executor"] == "pool"
-    assert "wall_s" not in summary
+    assert "wall_s" not in (out / "summary.json").read_text()
     assert "2 run, 0 resumed" in capsys.readouterr().err
 
     config = SweepConfig(out_dir=out, seeds=(0,), obstacle_heights_m=(0.07,), methods=("paper", "none"), trials=2,
                          workers=2)
     again = run_sweep(config, progress=False)
-    assert (again["ran"], again["resumed"], again["failed"]) == (0, 2, [])
-    assert (out / "summary.json").read_text() == summary
+    assert (again["ran"], again["resumed"], again["failed"], again["refused"]) == (0, 2, [], [])
+    assert again["rows"] == rows
 
-    (out / "cells" / "paper_h70mm_s0" / "metrics.json").write_text('{"config": {"method": "lear')
+    damaged = out / "cells" / "paper_h70mm_s0" / "weights.npz"
+    damaged.write_bytes(damaged.read_bytes()[:-40])  # truncated: the cell's records no longer verify
     metrics = json.loads((out / "cells" / "none_h70mm_s0" / "metrics.json").read_text())
     metrics["config"]["trials"] = 3
     (out / "cells" / "none_h70mm_s0" / "metrics.json").write_text(json.dumps(metrics))
-    with caplog.at_level(logging.WARNING, logger="hil.experiments.sweep"):
+    kept = {p: p.read_bytes() for p in (out / "cells").rglob("*") if p.is_file()}
+    with caplog.at_level(logging.ERROR, logger="hil.experiments.sweep"):
         third = run_sweep(config, progress=False)
-    assert (third["ran"], third["resumed"], third["failed"]) == (2, 0, [])
-    warnings = " ".join(r.getMessage() for r in caplog.records)
-    assert "corrupt" in warnings and "does not match" in warnings and "trials" in warnings
-    assert (out / "summary.json").read_text() == summary  # the runs are deterministic per seed
+    assert (third["ran"], third["resumed"], third["refused"]) == (0, 0, ["paper_h70mm_s0", "none_h70mm_s0"])
+    errors = " ".join(r.getMessage() for r in caplog.records)
+    assert "weights.npz" in errors and "trials: 3 in the folder, 2 asked" in errors
+    assert {p: p.read_bytes() for p in (out / "cells").rglob("*") if p.is_file()} == kept  # nothing deleted
+    assert main(argv) == 1
+    assert "2 cells hold something else and were kept as they are" in capsys.readouterr().err
+
+    assert main([*argv, "--overwrite"]) == 0  # explicit: clear the sweep and run it again
+    assert json.loads((out / "summary.json").read_text())["rows"] == rows  # the runs are deterministic per seed
+
+
+def test_a_sweep_of_another_configuration_is_refused_and_nothing_is_deleted(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    (out / "cells" / "none_h80mm_s0").mkdir(parents=True)
+    (out / "cells" / "none_h80mm_s0" / "metrics.json").write_text("{}")
+    (out / "config.json").write_text(json.dumps({"methods": ["none"], "obstacle_heights_m": [0.08],
+                                                 "mixed_heights": False, "seeds": [0], "trials": 3}))  # version 0
+    (out / "notes.txt").write_text("mine")
+    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    argv = ["sweep", "--out", str(out), "--seeds", "0", "--methods", "none", "--trials", "2", "--quiet"]
+    assert main(argv) == 3
+    err = capsys.readouterr().err
+    assert f"--out {out}: holds a sweep of another configuration (trials: 3 in the folder, 2 asked)" in err
+    assert "nothing was deleted" in err and "--overwrite" in err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != ".lock"} == files
+
+    # --overwrite clears the sweep's own files only (here: no cell runs, the one cell is busy)
+    from hil.experiments.journal import FolderLock
+
+    (out / "cells" / "none_h80mm_s0" / "metrics.json").unlink()
+    with FolderLock(out / "cells" / "none_h80mm_s0"):
+        assert main([*argv, "--overwrite"]) == 3
+        assert "cell none_h80mm_s0 is being written by another process; not clearing" in capsys.readouterr().err
+    assert (out / "config.json").exists() and (out / "cells").exists()
+
+
+def test_overwrite_only_clears_a_sweeps_folder(tmp_path, capsys):
+    out = tmp_path / "not_a_sweep"
+    (out / "cells").mkdir(parents=True)
+    (out / "cells" / "data.csv").write_text("1,2,3")
+    assert main(["sweep", "--out", str(out), "--seeds", "0", "--methods", "none", "--trials", "1", "--quiet",
+                 "--overwrite"]) == 3
+    assert "holds cells but no config.json: not a sweep's folder" in capsys.readouterr().err
+    assert (out / "cells" / "data.csv").read_text() == "1,2,3"
+
+
+def test_a_cell_another_process_writes_is_busy_not_run_twice(tmp_path, capsys):
+    from hil.experiments.journal import FolderLock
+
+    out = tmp_path / "sweep"
+    cell = out / "cells" / "none_h80mm_s0"
+    cell.mkdir(parents=True)
+    with FolderLock(cell):
+        assert main(["sweep", "--out", str(out), "--seeds", "0", "--methods", "none", "--trials", "1", "--quiet"]) == 1
+    assert "1 cells are being written by another process: none_h80mm_s0" in capsys.readouterr().err
+    assert [p.name for p in cell.iterdir()] == [".lock"]  # not run
+    assert json.loads((out / "timing.json").read_text())["busy"] == ["none_h80mm_s0"]
+
+
+def test_a_second_sweep_into_a_running_sweeps_folder_is_refused(tmp_path, capsys):
+    from hil.experiments.journal import FolderLock
+
+    out = tmp_path / "sweep"
+    out.mkdir()
+    with FolderLock(out):
+        assert main(["sweep", "--out", str(out), "--seeds", "0", "--methods", "none", "--trials", "1", "--quiet"]) == 3
+    assert "another run is writing this folder" in capsys.readouterr().err
+    assert not (out / "config.json").exists()
 
 
 def test_a_failing_cell_is_named_and_the_finished_ones_are_kept(tmp_path, capsys):
@@ -225,7 +296,7 @@ def test_a_failing_cell_is_named_and_the_finished_ones_are_kept(tmp_path, capsys
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert "1 cells failed: paper_h80mm_s1" in err
-    assert [r["cell"] for r in json.loads((out / "summary.json").read_text())] == ["paper_h80mm_s0"]
+    assert [r["cell"] for r in json.loads((out / "summary.json").read_text())["rows"]] == ["paper_h80mm_s0"]
     timing = json.loads((out / "timing.json").read_text())
     assert timing["failed"] == ["paper_h80mm_s1"]
     failed = timing["cells"][1]
@@ -235,7 +306,7 @@ def test_a_failing_cell_is_named_and_the_finished_ones_are_kept(tmp_path, capsys
     (out / "cells" / "paper_h80mm_s1").unlink()
     assert main(argv) == 0
     assert json.loads((out / "timing.json").read_text())["resumed"] == 1
-    assert len(json.loads((out / "summary.json").read_text())) == 2
+    assert len(json.loads((out / "summary.json").read_text())["rows"]) == 2
     assert "Incomplete" not in (out / "report.md").read_text()
 
 
@@ -243,7 +314,7 @@ def test_mixed_heights_are_one_scenario(tmp_path):
     out = tmp_path / "sweep"
     assert main(["sweep", "--out", str(out), "--seeds", "4", "--obstacle-heights-m", "0.06,0.10", "--mixed-heights",
                  "--methods", "paper", "--trials", "4", "--workers", "1", "--quiet"]) == 0
-    [row] = json.loads((out / "summary.json").read_text())
+    [row] = json.loads((out / "summary.json").read_text())["rows"]
     assert row["obstacle_height_m"] == [0.06, 0.1] and row["cell"] == "paper_h60mm+100mm_s4"
     metrics = json.loads((out / "cells" / row["cell"] / "metrics.json").read_text())
     assert metrics["config"]["obstacle_heights_m"] == [0.06, 0.1]
@@ -271,9 +342,9 @@ def test_pool_and_dask_local_give_the_same_summary(tmp_path):
               "--trials", "3", "--workers", "2", "--quiet"]
     assert main(["sweep", "--out", str(tmp_path / "pool"), *common]) == 0
     assert main(["sweep", "--out", str(tmp_path / "dask"), "--dask", "local", *common]) == 0
-    pool = (tmp_path / "pool" / "summary.json").read_text()
-    assert pool == (tmp_path / "dask" / "summary.json").read_text()
-    rows = json.loads(pool)
+    pool = json.loads((tmp_path / "pool" / "summary.json").read_text())
+    assert pool == json.loads((tmp_path / "dask" / "summary.json").read_text())
+    rows = pool["rows"]
     assert len(rows) == 24 and [r["method"] for r in rows[::6]] == ["paper", "none", "oracle", "rl"]
     assert json.loads((tmp_path / "dask" / "timing.json").read_text())["executor"] == "dask local"
 

@@ -109,3 +109,18 @@ def test_same_seed_same_walk():
     for m in (a, b):
         m.pop("wall_s")
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def test_the_walk_metrics_are_stamped_first(walk20):
+    assert list(walk20)[:3] == ["format", "format_version", "project_version"]
+    assert walk20["format"] == "walk" and walk20["format_version"] == 1 and walk20["project_version"]
+
+
+def test_walk_json_is_a_stamped_file(tmp_path):
+    from hil.cli import main
+
+    out = tmp_path / "walk.json"
+    rc = main(["walk", "--seconds", "2", "--quiet", "--json", str(out)])
+    written = json.loads(out.read_text())
+    assert written["format"] == "walk" and written["format_version"] == 1 and written["sim_s"] > 1.9
+    assert rc == (0 if written["phase"] == "walk" else 1)  # written either way

@@ -60,4 +60,70 @@ def test_an_unknown_row_name_is_an_error_with_the_known_ones(tmp_path, capsys):
 
     assert main(["faults", "--only", "gremlins", "--out", str(tmp_path), "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "unknown fault(s) gremlins" in err and "second_master" in err and "Traceback" not in err
+    assert "unknown row(s) gremlins" in err and "second_master" in err and "Traceback" not in err
+
+
+# -- the files the rows keep: stamped, read back, refused when of another kind or version ------------
+def test_a_finished_row_is_kept_stamped_and_read_back_without_the_stamp(tmp_path, monkeypatch):
+    import json
+
+    calls = []
+
+    def row(out):
+        calls.append(out)
+        return lifecycle._row("second_master", "lockstep", safe_state_ms=4.0, commands_outside_limits=0,
+                              data_lost=False)
+
+    monkeypatch.setitem(lifecycle.ROWS, "second_master", row)
+    first = lifecycle.run_rows(["second_master"], tmp_path)
+    kept = json.loads((tmp_path / "second_master" / "row.json").read_text())
+    assert list(kept)[:3] == ["format", "format_version", "project_version"]
+    assert kept["format"] == lifecycle.ROW_KIND == "fault-row" and kept["format_version"] == lifecycle.ROW_VERSION == 1
+    again = lifecycle.run_rows(["second_master"], tmp_path)  # read back, not run again
+    assert len(calls) == 1 and again == first and "format" not in again[0]
+    assert again[0]["safe_state_ms"] == 4.0
+
+
+def test_a_row_kept_before_stamps_is_read_as_version_0(tmp_path):
+    import json
+
+    path = tmp_path / "row.json"
+    path.write_text(json.dumps({"fault": "sighup", "data_lost": False}))
+    assert lifecycle.read_row(path) == {"fault": "sighup", "data_lost": False}
+
+
+@pytest.mark.parametrize("content,words", [
+    ({"format": "fault-row", "format_version": 99, "project_version": "9.9", "fault": "sighup"},
+     ["fault-row format version 99", "elegant-stepping 9.9", "use a matching elegant-stepping"]),
+    ({"format": "walk", "format_version": 1, "fault": "sighup"}, ["a 'walk' file, not a fault-row file"]),
+    ("{\"fault\": ", ["not a fault-row file (not JSON"]),
+])
+def test_a_kept_row_of_another_kind_or_version_is_refused_in_one_line(tmp_path, content, words):
+    import json
+
+    from controller.errors import InputError
+
+    folder = tmp_path / "sighup"
+    folder.mkdir()
+    path = folder / "row.json"
+    path.write_text(content if isinstance(content, str) else json.dumps(content))
+    with pytest.raises(InputError) as info:
+        lifecycle.run_rows(["sighup"], tmp_path)  # refused before anything runs
+    msg = str(info.value)
+    assert str(path) in msg and "\n" not in msg and all(w in msg for w in words), msg
+
+
+def test_the_daemon_legs_report_is_stamped_and_checked(tmp_path):
+    import json
+
+    from controller.errors import InputError, stamp
+    from hil.faults.daemonleg import REPORT_KIND, REPORT_VERSION, read_report
+
+    path = tmp_path / "leg.json"
+    assert read_report(path) == {}  # none: nothing reported
+    path.write_text(json.dumps({**stamp(REPORT_KIND, REPORT_VERSION), "commands_outside_limits": 0}))
+    assert read_report(path) == {"commands_outside_limits": 0}
+    for bad in ({"commands_outside_limits": 0}, {"format": REPORT_KIND, "format_version": 2}):
+        path.write_text(json.dumps(bad))
+        with pytest.raises(InputError, match="leg.json"):
+            read_report(path)

@@ -157,3 +157,100 @@ def test_weights_state_tells_missing_from_damaged(tmp_path):
     bad.write_bytes(b"PK\x03\x04 not really")
     s = weights_state(bad)
     assert s["exists"] and not s["loads"] and s["error"]
+
+
+# -- the mitm's counts file: stamped, checked ------------------------------------------------------
+def test_the_counts_file_is_stamped_and_read_back_without_the_stamp(tmp_path):
+    import json
+
+    from controller.errors import InputError
+    from hil.faults.mitm import COUNTS_KIND, _write_json, read_counts
+
+    path = tmp_path / "mitm.json"
+    _write_json(path, {"to_leg": {"frames_in": 3}, "pacing": {"max_gap_ms": 2.5}})
+    raw = json.loads(path.read_text())
+    assert list(raw)[:3] == ["format", "format_version", "project_version"]
+    assert raw["format"] == COUNTS_KIND == "mitm-counts" and raw["format_version"] == 1
+    assert read_counts(path) == {"to_leg": {"frames_in": 3}, "pacing": {"max_gap_ms": 2.5}}
+    raw["format_version"] = 99
+    path.write_text(json.dumps(raw))
+    with pytest.raises(InputError) as info:
+        read_counts(path)
+    assert "mitm-counts format version 99" in str(info.value) and "\n" not in str(info.value)
+
+
+# -- the safe state's tolerance: the stalls measured in the session, never a fixed budget ----------
+def _session(tmp_path, kind: str = "kill"):
+    from controller.config import ControllerConfig
+    from hil.faults.session import FaultSession
+
+    plan = FaultPlan(kill_at_trial=1) if kind == "kill" else FaultPlan(silence_node=0, silence_at_trial=1)
+    fs = FaultSession(plan, "vcan0", tmp_path, ControllerConfig(), {})
+    fs.watchdog_s, fs.heartbeat_s = 0.1, 0.1
+    fs.t_event_unix, fs.t_event_mono = 1000.0, 50.0
+    return fs
+
+
+class _Watcher:
+    def __init__(self, beats):
+        self.beats = beats
+        self.error = None
+
+    def snapshot(self):
+        return list(self.beats)
+
+
+def _idle_after(ms: float) -> list[Beat]:
+    """Both axes closed loop before the event (t = 1000 s), IDLE ``ms`` after it (the test's clock)."""
+    closed, idle = int(AxisState.CLOSED_LOOP_CONTROL), int(AxisState.IDLE)
+    return [Beat(999.95, a, closed, 0) for a in ("hip", "knee")] + [Beat(1000.0 + ms / 1e3, a, idle, 0)
+                                                                   for a in ("hip", "knee")]
+
+
+def _section(fs, *, plant_us, mitm_ms, controller_us=None, where="native"):
+    bye = {"axes": {}, "watchdog_trips": 2}
+    if plant_us is not None:
+        bye["pacing"] = {"max_period_us": plant_us}
+    fs.mitm_summary = {} if mitm_ms is None else {"pacing": {"max_gap_ms": mitm_ms}}
+    final = {} if controller_us is None else {"max_period_us": controller_us}
+
+    class Recorder:
+        commanded = None
+
+    return fs.section(where=where, bye=bye, final=final, rc_controller=-9, recorder=Recorder(), out=fs.work)
+
+
+def test_a_kills_safe_state_is_in_time_within_the_stalls_measured_on_its_path(tmp_path):
+    from hil.faults.session import fault_problems
+    from hil.profile import NATIVE
+
+    fs = _session(tmp_path)
+    fs.watcher = _Watcher(_idle_after(230.0))  # 30 ms past the 200 ms bound
+    sec = _section(fs, plant_us=28_000.0, mitm_ms=2.0)  # the plant stalled 28 ms, the mitm 2 ms
+    assert sec["bound_ms"] == pytest.approx(200.0) and sec["safe_state_ms"] == pytest.approx(230.0)
+    assert sec["stalls_ms"] == pytest.approx({"plant": 28.0, "mitm": 2.0})
+    assert sec["tolerance_ms"] == pytest.approx(NATIVE.late_allowance_s(0.028, 0.002) * 1e3) == pytest.approx(31.0)
+    assert sec["within_bound"]
+    late = _section(fs, plant_us=5_000.0, mitm_ms=2.0)  # only 5 ms of stall: 30 ms late is the code's
+    assert not late["within_bound"] and late["tolerance_ms"] == pytest.approx(8.0)
+    m = {"fault": late, "hil": {"error": None, "trials_completed": 1, "exit_codes": {"firmware_sim": 0}}}
+    late.update(mitm_exit_code=0, controller_exit_expected=True, weights={"exists": False})
+    problems = fault_problems(m, 3)
+    assert len(problems) == 1 and "over the bound of 200 ms + 8 ms" in problems[0] and "plant" in problems[0]
+
+
+def test_a_stall_not_measured_counts_as_the_platforms_fallback_and_a_silence_counts_the_controller(tmp_path):
+    from hil.profile import NATIVE, UML
+
+    fs = _session(tmp_path)
+    fs.watcher = _Watcher(_idle_after(210.0))
+    sec = _section(fs, plant_us=None, mitm_ms=2.0)  # firmware-sim said no bye
+    assert sec["stalls_ms"]["plant"] is None
+    assert sec["tolerance_ms"] == pytest.approx((NATIVE.safe_state_tolerance_ms / 1e3 + 0.002 + 0.001) * 1e3)
+    uml = _section(fs, plant_us=None, mitm_ms=None, where="uml")
+    assert uml["tolerance_ms"] == pytest.approx(2 * UML.safe_state_tolerance_ms + 1.0)
+    silence = _session(tmp_path, "silence")
+    silence.watcher = _Watcher(_idle_after(1100.0))
+    sec = _section(silence, plant_us=3_000.0, mitm_ms=2.0, controller_us=40_000.0)
+    assert sec["stalls_ms"] == pytest.approx({"plant": 3.0, "mitm": 2.0, "controller": 40.0})
+    assert sec["tolerance_ms"] == pytest.approx(46.0)

@@ -1,0 +1,67 @@
+"""``replay``: a damaged log is refused (exit 3) or, with --partial, replayed up to the damage; the
+files beside the log are checked for their structure."""
+
+from __future__ import annotations
+
+import json
+from array import array
+
+import pytest
+
+from hil.analysis.replay import replay
+from hil.cli import main
+from tests.bad_inputs import session_frames, write_blf
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("replay")
+    data = write_blf(d / "whole.blf", session_frames(6000))
+    (d / "cut").mkdir()
+    (d / "cut" / "bus.blf").write_bytes(data[: len(data) * 2 // 3])
+    return d
+
+
+def test_a_truncated_log_is_exit_3_and_with_partial_the_frames_before_the_damage(logs, capsys):
+    assert main(["replay", str(logs / "cut" / "bus.blf")]) == 3
+    err = capsys.readouterr().err
+    assert err.splitlines() == [f"elegant-stepping replay: error: {logs}/cut/bus.blf: damaged at frame 2731: "
+                                f"the file ends inside a container ({err.split('container (')[1].split(')')[0]}); "
+                                f"the 2730 frames before it are valid (--partial: use them)"]
+    assert main(["replay", str(logs / "cut" / "bus.blf"), "--partial", "--json", str(logs / "cut.json")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith(f"elegant-stepping replay: warning: {logs}/cut/bus.blf: read 2730 frames, stopped at "
+                             f"frame 2731: ")
+    partial = json.loads((logs / "cut.json").read_text())
+    assert partial["partial"]["frames_read"] == 2730 and partial["partial"]["stopped_at"] == "frame 2731"
+    # the same decisions as a replay of the whole log's first 2730 frames
+    first = replay(logs / "whole.blf", frames=session_frames(6000)[:2730])
+    assert partial["steps"] == json.loads(json.dumps(first["steps"])) and partial["ticks"] == first["ticks"] > 0
+    assert main(["replay", str(logs / "whole.blf"), "--json", str(logs / "whole.json")]) == 0
+    assert json.loads((logs / "whole.json").read_text())["partial"] is None
+
+
+def test_records_with_a_step_of_the_wrong_structure_are_named(logs, tmp_path, capsys):
+    rec = tmp_path / "controller.jsonl"
+    clock = json.dumps({"kind": "clock", "realtime_minus_monotonic_s": 1.5}) + "\n"
+    rec.write_text(clock + json.dumps({"kind": "step", "index": 0, "cell": 3}) + "\n")
+    assert main(["replay", str(logs / "whole.blf"), "--records", str(rec)]) == 3
+    err = capsys.readouterr().err
+    assert err.strip() == f"elegant-stepping replay: error: --records {rec}: step record 1 lacks modulation_s, burst_s"
+    rec.write_text(clock + json.dumps({"kind": "step", "index": "zero", "cell": 3, "modulation_s": 0.0, "burst_s": 0.3}) + "\n")
+    assert main(["replay", str(logs / "whole.blf"), "--records", str(rec)]) == 3
+    assert "step record 1 has a field of the wrong type" in capsys.readouterr().err
+
+
+def test_a_ticks_file_cut_short_is_named(tmp_path, capsys):
+    write_blf(tmp_path / "bus.blf", session_frames(200))
+    (tmp_path / "controller.jsonl").write_text(json.dumps({"kind": "clock", "realtime_minus_monotonic_s": 1.5}) + "\n")
+    ticks = array("d", [0.0, 2.0, 0.002, 2.0]).tobytes()
+    (tmp_path / "controller.ticks").write_bytes(ticks[:-3])
+    assert main(["replay", str(tmp_path / "bus.blf")]) == 3
+    err = capsys.readouterr().err
+    assert "controller.ticks: 29 bytes, not whole (tick clock, frames read) pairs of doubles (cut short at tick 2)" in err
+    (tmp_path / "controller.jsonl").write_text(json.dumps({"kind": "clock"}) + "\n")
+    (tmp_path / "controller.ticks").write_bytes(ticks)
+    assert main(["replay", str(tmp_path / "bus.blf")]) == 3
+    assert "its clock record has no realtime_minus_monotonic_s" in capsys.readouterr().err
