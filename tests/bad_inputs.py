@@ -335,6 +335,9 @@ ROWS: tuple[Row, ...] = (
     Row("sweep_other_configuration", "a sweep into a folder of another configuration (nothing deleted)",
         ("sweep", "--out", "{tmp}/sweep", "--seeds", "0", "--methods", "none", "--trials", "2", "--quiet"), 3,
         ("{tmp}/sweep",), keep=("sweep/summary.json",), owner="A"),
+    Row("sweep_into_a_folder_of_other_things", "a sweep into a folder of other files (--out /tmp; nothing written)",
+        ("sweep", "--out", "{tmp}", "--seeds", "0", "--methods", "none", "--trials", "1", "--quiet"), 3,
+        ("not a sweep's folder", "a_file"), keep=("a_file",)),
 )
 """Every bad input, in the order of the table."""
 

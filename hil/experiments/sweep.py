@@ -444,7 +444,8 @@ def check_folder(out: Path, config: SweepConfig, overwrite: bool = False, shown:
 
     Raises:
         InputError: ``config.json`` names another configuration (the first differing key; nothing
-            is deleted), is damaged, or is missing beside a ``cells/`` folder; with ``overwrite``,
+            is deleted), is damaged, or is missing in a folder holding anything but a sweep's own
+            files (``--out /tmp``), or beside a ``cells/`` folder; with ``overwrite``,
             also a cell that another process is writing.
     """
     from hil.experiments.learn import config_difference
@@ -452,6 +453,11 @@ def check_folder(out: Path, config: SweepConfig, overwrite: bool = False, shown:
     out_shown = out if shown is None else shown  # the folder as the person gave it
     path = out / "config.json"
     if not path.exists():
+        others = sorted(p.name for p in out.iterdir() if p.name not in SWEEP_FILES and p.name != ".lock") \
+            if out.is_dir() else []
+        if others:  # a sweep writes config.json first: a folder of other things is not one (e.g. --out /tmp)
+            raise InputError(f"--out {out_shown}: holds {', '.join(others[:3])}{' ...' if len(others) > 3 else ''} "
+                             f"and no sweep config.json: not a sweep's folder; give an empty or new --out")
         stray = [n for n in ("cells", "summary.json") if (out / n).exists()]
         if stray and overwrite:  # without --overwrite nothing is deleted: each cell is checked on its own
             raise InputError(f"--out {out_shown}: holds {', '.join(stray)} but no config.json: not a sweep's folder, "
