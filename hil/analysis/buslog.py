@@ -23,7 +23,9 @@ convert string to float") is the damage, by its line number.
 **Metadata**: a recording made by the HIL session's recorder (:mod:`hil.session.recorder`) has a
 metadata file beside it (:func:`metadata_path`, stamped ``bus-log`` version :data:`METADATA_VERSION`,
 read by :func:`read_metadata`); its frame count is compared with the frames read, which finds a
-log cut at a frame or line boundary (else undetectable in a text log).
+log cut at a frame or line boundary (else undetectable in a text log). Its ``frames_lost`` is the
+kernel's count of frames the recorder's socket dropped (``SO_RXQ_OVFL``): frames that were on the
+bus but are not in the log, which no reading of the log can find (:func:`frames_lost`).
 
 May raise: :class:`controller.errors.InputError` for a log that cannot be read at all (missing, a
 folder, a format python-can does not read) or metadata of an unknown version; damage is raised
@@ -222,8 +224,12 @@ class LogReading:
 
 METADATA_KIND = "bus-log"
 METADATA_VERSION = 1
-"""The bus-log metadata's format version: 1 (channel, frames each way, error); 0 is a metadata file
-without a stamp."""
+"""The bus-log metadata's format version: 1 (channel, frames each way, error, and since issue 16
+``frames_lost``); 0 is a metadata file without a stamp.
+
+``frames_lost`` was added to version 1 without a new version: a reader that does not know the key
+reads every other key as before, and a file written before it is read as "lost: unknown" (the
+same as ``null``, which a recorder not on SocketCAN writes), never as 0."""
 
 
 def metadata_path(log: str | Path) -> Path:
@@ -237,7 +243,7 @@ def read_metadata(log: str | Path) -> dict[str, Any] | None:
 
     Raises:
         InputError: it is not JSON, not a bus-log metadata file, of a version this reader does
-            not know, or its frame count is not a count.
+            not know, or its frame count or lost-frame count is not a count.
     """
     from controller.errors import check_stamp
 
@@ -251,10 +257,18 @@ def read_metadata(log: str | Path) -> dict[str, Any] | None:
     except (ValueError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not valid JSON ({' '.join(str(exc).split())})") from None
     check_stamp(data, METADATA_KIND, (0, METADATA_VERSION), source=str(path))
-    frames = data.get("frames")
-    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 0):
-        raise InputError(f"{path}: 'frames' is {frames!r}, not a count of frames")
+    for key in ("frames", "frames_lost"):
+        n = data.get(key)
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 0):
+            raise InputError(f"{path}: {key!r} is {n!r}, not a count of frames")
     return data
+
+
+def frames_lost(metadata: dict[str, Any] | None) -> int | None:
+    """The frames the recorder lost (the kernel's drop count, from :func:`read_metadata`'s
+    ``metadata``): a count, or None where unknown (no metadata, a file written before the count
+    existed, or a recording not made on SocketCAN)."""
+    return None if metadata is None else metadata.get("frames_lost")
 
 
 def _short(exc: BaseException, limit: int = 120) -> str:
@@ -328,5 +342,5 @@ def read_frames(path: str | Path, partial: bool = False, warn=None,
     return frames
 
 
-__all__ = ["Damage", "LogReading", "read_frames", "read_metadata", "metadata_path", "METADATA_KIND",
+__all__ = ["Damage", "LogReading", "frames_lost", "read_frames", "read_metadata", "metadata_path", "METADATA_KIND",
            "METADATA_VERSION", "TEXT_READERS"]

@@ -20,8 +20,19 @@ log (an empty, garbage, truncated or bit-flipped BLF, a junk line in a candump l
 error (exit 3) naming the frame or line where the damage starts, unless ``--partial``, which uses
 the valid frames before it and says so in one warning line. The recorder's metadata beside the log
 (``bus.blf.json``, :func:`hil.analysis.buslog.read_metadata`) is checked for its format version
-and gives the frame count the log must hold. Every other file replay reads (``--config``,
-``--records``, ``controller.ticks``) is checked for its structure; a problem is one line naming it.
+and gives the frame count the log must hold.
+
+**Lost frames.** The metadata also gives ``frames_lost``: the frames the kernel dropped before the
+recorder read them (:mod:`hil.session.recorder`, ``SO_RXQ_OVFL``). A lost frame is one the live
+controller may have read and the replayed one cannot, so a replay of such a log is not the live
+run: with any lost, replay says how many in one warning line, its result has ``frames_lost: N``
+and ``as_live: false``, and the comparison with the live records is reported as "steps match the
+live records (not a reproduction: N frames lost)" instead of "steps as live". With none lost it
+is as before (``as_live: true``). Where the count is unknown (no metadata, a recording from before
+the count, or one not made on SocketCAN) both are null and the summary says so.
+
+Every other file replay reads (``--config``, ``--records``, ``controller.ticks``) is checked for
+its structure; a problem is one line naming it.
 """
 
 from __future__ import annotations
@@ -39,7 +50,7 @@ import cantools
 
 from controller.config import ControllerConfig
 from controller.loop import ControlLoop
-from hil.analysis.buslog import LogReading, read_frames, read_metadata
+from hil.analysis.buslog import LogReading, frames_lost, read_frames, read_metadata
 from hil.session.recorder import SET_INPUT_POS, sent_by_controller
 from protocol import SENSOR_BOARD_NODE_ID, split_arbitration_id
 from protocol.contract import DBC_PATH, BusContract
@@ -254,6 +265,30 @@ def _live_ticks(ticks_path: Path, rec_path: Path) -> tuple[list[float], list[int
     return pairs[0::2], [int(n) for n in counts], float(offset)
 
 
+def _frames(n: int) -> str:
+    return f"{n} frame{'' if n == 1 else 's'}"
+
+
+def lost_line(log: str | Path, lost: int) -> str:
+    """The warning for a recording whose recorder lost ``lost`` (> 0) frames."""
+    return (f"{log}: the recorder lost {_frames(lost)} (dropped by the kernel, its "
+            f"receive queue full): the replayed controller cannot read what the live one read, so this "
+            f"replay is not the live run")
+
+
+def summary_tail(matching: int | None, compared: int | None, lost: int | None, with_live: bool) -> str:
+    """The end of replay's summary line: the comparison with the live records (if any), called
+    "as live" only when the recorder lost no frames; the lost frames when any or unknown."""
+    if lost is None:
+        tail = f"; {matching}/{compared} steps as live" if with_live else ""
+        return tail + "; frames lost by the recorder: unknown"
+    if lost == 0:
+        return f"; {matching}/{compared} steps as live" if with_live else ""
+    if with_live:
+        return f"; {matching}/{compared} steps match the live records (not a reproduction: {_frames(lost)} lost)"
+    return f"; {_frames(lost)} lost by the recorder"
+
+
 def main_replay(args) -> int:
     from controller.cli.common import check_output_file, warn
     from controller.errors import InputError
@@ -273,6 +308,9 @@ def main_replay(args) -> int:
     line = reading.check(getattr(args, "partial", False))
     if line is not None:
         warn(args, line)
+    lost = frames_lost(metadata)
+    if lost:
+        warn(args, lost_line(log, lost))
     if cfg_path is None:  # the session's: controller.toml, else an old session's controller.json (with a warning)
         candidates = (log.parent / "controller.toml", log.parent / "controller.json")
         cfg_path = next((p for p in candidates if p.exists()), None)
@@ -291,6 +329,8 @@ def main_replay(args) -> int:
     result = replay(log, config, tick_times=tick_times, tick_counts=tick_counts, clock_offset_s=offset,
                     drivers_watchdog_s=drivers_watchdog_s, frames=frames)
     result["config"] = None if cfg_path is None else str(cfg_path)
+    result["frames_lost"] = lost
+    result["as_live"] = None if lost is None else lost == 0
     result["partial"] = None if reading.damage is None else {"frames_read": reading.frames,
                                                              "stopped_at": reading.damage.where,
                                                              "reason": reading.damage.reason}
@@ -312,8 +352,7 @@ def main_replay(args) -> int:
         print(line, file=out)
     summary = f"replayed {result['frames']} frames in {result['ticks']} ticks: {len(result['steps'])} steps, " \
               f"{result['reflexes']} reflexes, final phase {result['phase']}"
-    if live is not None:
-        summary += f"; {result['matching_steps']}/{result['compared_steps']} steps as live"
+    summary += summary_tail(result.get("matching_steps"), result.get("compared_steps"), lost, live is not None)
     print(summary, file=sys.stderr)
     if args.json is not None:
         from controller.cli.common import write_json

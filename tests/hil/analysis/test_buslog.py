@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import zlib
 
 import can
 import pytest
 
 from controller.errors import InputError
-from hil.analysis.buslog import LogReading, read_frames
+from hil.analysis.buslog import LogReading, frames_lost, metadata_path, read_frames, read_metadata
 from tests.bad_inputs import session_frames, write_blf, write_candump
 
 
@@ -148,3 +149,16 @@ def test_the_zlib_error_is_what_python_cans_own_reader_would_hit(whole, tmp_path
     (tmp_path / "f.blf").write_bytes(bytes(b))
     with pytest.raises((zlib.error, can.io.blf.BLFParseError)):
         list(can.io.BLFReader(str(tmp_path / "f.blf")))
+
+
+def test_metadata_of_version_1_without_the_lost_count_reads_as_unknown_and_with_it_as_the_count(tmp_path):
+    """The recorder's lost-frame count (issue 16) is a new key of version 1: absent is unknown, not 0."""
+    log = tmp_path / "bus.blf"
+    stamp = {"format": "bus-log", "format_version": 1, "project_version": "0.9"}
+    metadata_path(log).write_text(json.dumps({**stamp, "frames": 3}))  # written before the count existed
+    assert frames_lost(read_metadata(log)) is None
+    metadata_path(log).write_text(json.dumps({**stamp, "frames": 3, "frames_lost": 0}))
+    assert frames_lost(read_metadata(log)) == 0
+    metadata_path(log).write_text(json.dumps({**stamp, "frames": 3, "frames_lost": 17}))
+    assert frames_lost(read_metadata(log)) == 17
+    assert frames_lost(None) is None  # a log without metadata

@@ -1,5 +1,6 @@
 """``replay``: a damaged log is refused (exit 3) or, with --partial, replayed up to the damage; the
-files beside the log are checked for their structure."""
+files beside the log are checked for their structure; the frames its recorder lost are reported,
+and a replay of a log with any lost is not called "as live"."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from array import array
 
 import pytest
 
-from hil.analysis.replay import replay
+from hil.analysis.replay import replay, summary_tail
 from hil.cli import main
 from tests.bad_inputs import session_frames, write_blf
 
@@ -65,3 +66,61 @@ def test_a_ticks_file_cut_short_is_named(tmp_path, capsys):
     (tmp_path / "controller.ticks").write_bytes(ticks)
     assert main(["replay", str(tmp_path / "bus.blf")]) == 3
     assert "its clock record has no realtime_minus_monotonic_s" in capsys.readouterr().err
+
+
+def _session(folder, metadata: dict | None, records: bool = True):
+    """A short recorded session in ``folder``: its log, the recorder's metadata (None: none), and
+    live records (one step, which the replay of these frames does not reach)."""
+    folder.mkdir(exist_ok=True)
+    write_blf(folder / "bus.blf", session_frames(400))
+    if metadata is not None:
+        (folder / "bus.blf.json").write_text(json.dumps({"format": "bus-log", "format_version": 1,
+                                                         "project_version": "0.9", "frames": 400, **metadata}))
+    if records:
+        (folder / "controller.jsonl").write_text(
+            json.dumps({"kind": "clock", "realtime_minus_monotonic_s": 1.5}) + "\n"
+            + json.dumps({"kind": "step", "index": 0, "cell": 3, "modulation_s": 0.0, "burst_s": 0.3}) + "\n")
+    return folder / "bus.blf"
+
+
+def _run(log, capsys):
+    assert main(["replay", str(log), "--json", str(log.parent / "replay.json")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    return err, json.loads((log.parent / "replay.json").read_text())
+
+
+def test_a_log_whose_recorder_lost_frames_is_replayed_but_not_called_as_live(tmp_path, capsys):
+    log = _session(tmp_path / "lossy", {"frames_lost": 5})
+    err, result = _run(log, capsys)
+    assert err[0] == (f"elegant-stepping replay: warning: {log}: the recorder lost 5 frames (dropped by the kernel, "
+                      f"its receive queue full): the replayed controller cannot read what the live one read, so this "
+                      f"replay is not the live run")
+    assert len(err) == 2 and "as live" not in err[1]
+    assert err[1].endswith("; 0/0 steps match the live records (not a reproduction: 5 frames lost)")
+    assert (result["frames_lost"], result["as_live"]) == (5, False)
+    assert result["compared_steps"] == 0 and result["records"].endswith("controller.jsonl")  # compared all the same
+    assert summary_tail(29, 37, 1, True) == "; 29/37 steps match the live records (not a reproduction: 1 frame lost)"
+    assert summary_tail(29, 37, 8, True) == "; 29/37 steps match the live records (not a reproduction: 8 frames lost)"
+    log = _session(tmp_path / "lossy_no_records", {"frames_lost": 1}, records=False)
+    err, result = _run(log, capsys)
+    assert "the recorder lost 1 frame (dropped" in err[0] and err[1].endswith("; 1 frame lost by the recorder")
+    assert (result["frames_lost"], result["as_live"]) == (1, False)
+
+
+def test_a_log_whose_recorder_lost_none_is_replayed_as_before(tmp_path, capsys):
+    log = _session(tmp_path / "whole", {"frames_lost": 0})
+    err, result = _run(log, capsys)
+    assert len(err) == 1 and "warning" not in err[0]
+    assert err[0].startswith("replayed 400 frames in ") and err[0].endswith("; 0/0 steps as live")
+    assert (result["frames_lost"], result["as_live"]) == (0, True)
+    assert summary_tail(37, 37, 0, True) == "; 37/37 steps as live" and summary_tail(None, None, 0, False) == ""
+
+
+@pytest.mark.parametrize("metadata", [None, {}, {"frames_lost": None}],
+                         ids=["no metadata", "metadata before the count", "not SocketCAN"])
+def test_a_log_whose_lost_frames_are_unknown_is_reported_as_unknown(tmp_path, capsys, metadata):
+    log = _session(tmp_path / "s", metadata)
+    err, result = _run(log, capsys)
+    assert len(err) == 1 and "warning" not in err[0]
+    assert err[0].endswith("; 0/0 steps as live; frames lost by the recorder: unknown")
+    assert (result["frames_lost"], result["as_live"]) == (None, None)
