@@ -15,8 +15,14 @@ SDO: RxSdo and TxSdo carry an endpoint's value in bytes 4..7, whose type depends
 The DBC keeps ODrive's raw ``Value`` (uint32); :func:`sdo_value_bits` and :func:`sdo_bits_value`
 convert a float32 endpoint's value to and from it.
 
+Simulated time (``hil --clock sim``): ``ES_Sim_Sync`` and ``ES_End_Of_Period`` are the only
+messages on 29-bit extended ids (:data:`SIM_SYNC_ID`, :data:`END_OF_PERIOD_ID`); they belong to
+no node, so they are in :attr:`BusContract.extended` (by frame id), never in ``odrive`` or
+``sensor_board``, and :meth:`BusContract.route` (11-bit ids only) never returns them. Their
+``Sim_Time`` is a float64 (the plant's clock bit for bit), packed with ``struct``'s ``d``.
+
 :class:`MessageCodec` packs and unpacks payloads. Where every signal of a message is
-byte-aligned, little-endian and 8/16/32 bits wide, the layout is compiled once into a
+byte-aligned, little-endian and 8/16/32 bits wide (or a float64), the layout is compiled once into a
 ``struct.Struct`` for the hot path (its cost against cantools: docs/benchmarks.md); otherwise
 (and for a float signal with a scale or offset) cantools does the work. Both paths come from the same DBC signal definitions and are tested
 against each other.
@@ -40,6 +46,11 @@ MASTER_NODE = "Controller"  # the DBC's name for the bus master: the messages on
 NODE_ID_BITS = 6
 CMD_ID_MASK = 0x1F
 MAX_NODE_ID = 0x3F
+MAX_STANDARD_ID = 0x7FF
+SIM_SYNC_ID = 0x1FFFFF00
+"""29-bit id of ``ES_Sim_Sync`` (the plant's simulated time, once per control period)."""
+END_OF_PERIOD_ID = 0x1FFFFF01
+"""29-bit id of ``ES_End_Of_Period`` (the controller has ticked for a sync)."""
 DBC_PATH = Path(str(resources.files("protocol").joinpath("elegant_stepping.dbc")))
 
 SHORT_FRAMES: Mapping[str, int] = MappingProxyType({
@@ -148,8 +159,11 @@ class MessageCodec:
         for s in signals:
             if s.byte_order != "little_endian" or s.start % 8 or s.start < pos:
                 return None
-            code = "f" if (s.is_float and s.length == 32) else _STRUCT_CODES.get((s.length, s.is_signed))
-            if code is None or (s.is_float and (s.length != 32 or s.scale != 1 or s.offset != 0)):
+            if s.is_float:
+                code = {32: "f", 64: "d"}.get(s.length)
+            else:
+                code = _STRUCT_CODES.get((s.length, s.is_signed))
+            if code is None or (s.is_float and (s.scale != 1 or s.offset != 0)):
                 return None  # (a scaled float is left to cantools: the struct path scales integers only)
             if s.start > pos:
                 fmt += f"{(s.start - pos) // 8}x"
@@ -238,6 +252,7 @@ class BusContract:
         self.db = db
         self.odrive: dict[int, MessageCodec] = {}
         self.sensor_board: dict[int, MessageCodec] = {}
+        self.extended: dict[int, MessageCodec] = {}  # 29-bit frame id -> codec (simulated time only)
         self.by_name: dict[str, MessageCodec] = {}
         # What only the master sends (commands and Get_* requests' ids as data frames): hearing
         # one of these from someone else means another master is on the bus. Address is sent by
@@ -247,6 +262,9 @@ class BusContract:
         for message in db.messages:
             codec = MessageCodec(message)
             self.by_name[message.name] = codec
+            if message.is_extended_frame:
+                self.extended[message.frame_id] = codec
+                continue
             node_id = message.frame_id >> 5
             if node_id == 0:
                 self.odrive[codec.cmd_id] = codec
@@ -272,7 +290,10 @@ class BusContract:
             raise KeyError(f"no message named {name!r} in the DBC") from None
 
     def route(self, arb_id: int) -> Route | None:
-        """The node and codec of an arbitration id, or None for an id outside the contract."""
+        """The node and codec of an 11-bit arbitration id, or None for an id outside the
+        contract (every id above 0x7FF: the extended ids are in :attr:`extended`)."""
+        if not 0 <= arb_id <= MAX_STANDARD_ID:
+            return None
         node_id, cmd_id = split_arbitration_id(arb_id)
         table = self.sensor_board if node_id == SENSOR_BOARD_NODE_ID else self.odrive
         codec = table.get(cmd_id)

@@ -327,3 +327,39 @@ def test_integers_of_an_unscaled_message_decode_as_ints_and_range_errors_say_why
 def test_a_dbc_message_of_no_known_node_is_refused_naming_it():
     with pytest.raises(ValueError, match=r"^DBC message Stray at 0x100 belongs to no known node$"):
         _contract_from('BO_ 256 Stray: 1 Controller\n SG_ X : 0|8@1+ (1,0) [0|0] "" ODrive\n')
+
+
+# -- simulated time (hil --clock sim) ------------------------------------------------------------
+def test_the_simulated_time_frames_are_extended_ids_of_no_node():
+    from protocol.contract import END_OF_PERIOD_ID, SIM_SYNC_ID
+
+    sync, eop = contract.codec("ES_Sim_Sync"), contract.codec("ES_End_Of_Period")
+    assert (sync.frame_id, eop.frame_id) == (SIM_SYNC_ID, END_OF_PERIOD_ID) == (0x1FFFFF00, 0x1FFFFF01)
+    assert sync.message.is_extended_frame and eop.message.is_extended_frame
+    assert contract.extended == {SIM_SYNC_ID: sync, END_OF_PERIOD_ID: eop}
+    assert sync not in contract.odrive.values() and sync not in contract.sensor_board.values()
+    assert eop not in contract.odrive.values() and eop not in contract.sensor_board.values()
+    assert contract.route(SIM_SYNC_ID) is None and contract.route(END_OF_PERIOD_ID) is None
+    assert contract.route(0x800) is None and contract.route(-1) is None
+    # the plant side sends the sync, only the controller the end of period
+    assert sync.message.senders == ["SensorBoard"] and "ES_Sim_Sync" not in contract.master_messages
+    assert eop.message.senders == ["Controller"] and "ES_End_Of_Period" in contract.master_messages
+    assert contract.odrive_master_cmds == frozenset({2, 4, 7, 11, 12, 13, 14, 15, 17, 18, 19, 22, 24, 25, 26, 27, 31})
+
+
+def test_sim_time_crosses_the_bus_bit_for_bit():
+    """The plant's clock is a sum of float steps (t += dt), which n * dt or whole microseconds
+    do not reproduce: the frame carries the float64 itself."""
+    t, dt, ts = 0.0, 1.0 / 1000.0, []
+    for n in range(1, 3001):
+        t += dt
+        ts.append(t)
+    assert any(t != n * dt for n, t in enumerate(ts, 1))  # why a float64 and not a count
+    for name in ("ES_Sim_Sync", "ES_End_Of_Period"):
+        codec = contract.codec(name)
+        assert codec.compiled and codec.dlc == 8 and codec.signal_names == ("Sim_Time",)
+        for t in (*ts[::97], 0.0, 1e9 + 1e-6, 2.0 ** -1074):
+            data = codec.pack(t)
+            assert data == struct.pack("<d", t) == bytes(codec.message.encode({"Sim_Time": t}))
+            (back,) = codec.unpack(data)
+            assert struct.pack("<d", back) == struct.pack("<d", t)

@@ -104,7 +104,12 @@ def test_we_define_no_odrive_message_the_reference_lacks():
     names = {m.name.removeprefix("Axis0_") for m in AXIS0}
     odrive = [m.name for m in ours.messages if m.frame_id >> 5 == 0]
     assert sorted(set(odrive) - names) == []
-    assert all(m.name.startswith("SB_") and m.senders == ["SensorBoard"] for m in ours.messages if m.frame_id >> 5)
+    standard = [m for m in ours.messages if not m.is_extended_frame]
+    assert all(m.name.startswith("SB_") and m.senders == ["SensorBoard"] for m in standard if m.frame_id >> 5)
+    # the simulated-time frames: 29-bit ids, above every 11-bit id, and nothing else extended
+    extended = {m.name: m.frame_id for m in ours.messages if m.is_extended_frame}
+    assert extended == {"ES_Sim_Sync": 0x1FFFFF00, "ES_End_Of_Period": 0x1FFFFF01}
+    assert all(0x7FF < i <= 0x1FFFFFFF for i in extended.values())
 
 
 @pytest.mark.parametrize("node", range(8))

@@ -1,0 +1,167 @@
+"""Simulated time through the sync protocol, in one process: the same run as the in-process
+lockstep, frame for frame (learning records, a walk's metrics, faults, a killed controller)."""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+
+import pytest
+
+import hil.experiments.learn as learn
+import hil.experiments.walk as walk
+from controller.supervisor import Phase
+from hil.faults.model import FaultSpec
+from hil.lockstep.harness import Lockstep, LockstepConfig
+from hil.lockstep.synced import SyncedLockstep
+from protocol.contract import END_OF_PERIOD_ID, SIM_SYNC_ID
+
+
+def _learn(monkeypatch, harness: type) -> tuple[list[str], dict]:
+    monkeypatch.setattr(learn, "Lockstep", harness)  # LearningRun builds Lockstep(config.lockstep(), ...)
+    run = learn.LearningRun(learn.LearnConfig(trials=3, seed=0))
+    try:
+        trials = run.run()
+        assert type(run.ls) is harness
+        ls = run.ls
+        facts = {"t_s": ls.t_s, "ticks": ls.loop.stats.ticks, "dropped": dict(ls.loop.io.dropped),
+                 "host": dict(ls.leg.host.stats)}
+        if isinstance(ls, SyncedLockstep):
+            facts["plant_bus"] = dict(ls.plant_bus.stats)
+            facts["sim_clock"] = dict(ls.sim_clock.stats)
+    finally:
+        run.close()
+    return [json.dumps(t, sort_keys=True) for t in trials], facts
+
+
+def test_learning_through_the_sync_protocol_gives_the_in_process_records(monkeypatch):
+    plain, plain_facts = _learn(monkeypatch, Lockstep)
+    synced, facts = _learn(monkeypatch, SyncedLockstep)
+    assert len(plain) == 3
+    assert synced == plain  # per trial, every field
+    # the same clock and the same bus, seen from both ends
+    for key in ("t_s", "ticks", "dropped", "host"):
+        assert facts[key] == plain_facts[key], key
+    assert facts["dropped"] == {}  # no sync or end-of-period frame reached the controller's BusIO
+    assert facts["host"]["unknown"] == 0  # ... or the plant's nodes
+    # every tick came from a sync and was answered
+    n = facts["ticks"]
+    assert n > 9000
+    assert facts["sim_clock"] == {"syncs": n, "ends": n, "foreign_end_of_period": 0, "malformed_sync": 0}
+    assert facts["plant_bus"] == {"syncs": n, "ends": n, "alone": 0, "stale_ends": 0, "hidden": 0}
+
+
+def test_a_walk_through_the_sync_protocol_gives_the_in_process_metrics(monkeypatch):
+    metrics = {}
+    for harness in (Lockstep, SyncedLockstep):
+        monkeypatch.setattr(walk, "Lockstep", harness)
+        m = walk.run_walk(4.0, seed=1)
+        m.pop("wall_s")
+        metrics[harness.__name__] = json.dumps(m, sort_keys=True)
+    assert json.loads(metrics["Lockstep"])["steps"] > 0
+    assert metrics["SyncedLockstep"] == metrics["Lockstep"]
+
+
+def _run(ls: Lockstep, t_s: float) -> None:
+    while ls.t_s < t_s:
+        ls.step()
+
+
+def test_the_sync_follows_the_period_s_frames_and_the_end_of_period_the_controller_s():
+    with SyncedLockstep(LockstepConfig(seed=2)) as ls:
+        tap = ls.observer()
+        try:
+            _run(ls, 1.0)
+            frames = []
+            while (m := tap.recv(timeout=0.0)) is not None:
+                frames.append(m)
+        finally:
+            tap.shutdown()
+    syncs = [i for i, m in enumerate(frames) if m.is_extended_id and m.arbitration_id == SIM_SYNC_ID]
+    ends = [i for i, m in enumerate(frames) if m.is_extended_id and m.arbitration_id == END_OF_PERIOD_ID]
+    assert len(syncs) == len(ends) == ls.loop.stats.ticks == 500
+    times = [struct.unpack("<d", frames[i].data)[0] for i in syncs]
+    assert times == sorted(times) and times[-1] == ls.t_s
+    for s, e in zip(syncs, ends):
+        assert s < e and frames[e].data == frames[s].data  # the end echoes the sync's time, bit for bit
+        # between a sync and its end: only the controller's frames (to the ODrive nodes 0, 1 and
+        # the sensor board 16), no plant frame
+        between = frames[s + 1:e]
+        assert all(not m.is_extended_id and m.arbitration_id >> 5 in (0, 1, 16) for m in between)
+    assert any(e - s > 1 for s, e in zip(syncs, ends))  # the controller did send in its periods
+
+
+def test_faults_wrap_the_sim_clock_and_give_the_in_process_run():
+    results = []
+    for harness in (Lockstep, SyncedLockstep):
+        with harness(LockstepConfig(seed=4)) as ls:
+            _run(ls, 1.5)
+            faulty = ls.inject_faults(FaultSpec(drop=0.05, delay=0.05, reorder=0.02),
+                                      FaultSpec(drop=0.05, duplicate=0.02), seed=9)
+            _run(ls, 3.0)
+            ls.silence([16])  # the sensor board goes silent: the controller must stop safely
+            _run(ls, 4.0)
+            results.append((faulty.counts(), dict(ls.loop.io.rx), dict(ls.loop.io.dropped), ls.loop.phase,
+                            ls.loop.supervisor.fault_cause, ls.axes_idle()))
+            if isinstance(ls, SyncedLockstep):
+                assert ls.plant_bus.stats["alone"] == 0 and ls.sim_clock.stats["ends"] == ls.loop.stats.ticks
+    assert results[0][0]["from_leg"] and results[0][0]["silenced_frames"] > 0
+    assert results[0][3] is Phase.FAULT
+    assert results[1] == results[0]
+
+
+def test_a_killed_controller_leaves_the_plant_stepping_alone_on_simulated_time():
+    idle_at = []
+    for harness in (Lockstep, SyncedLockstep):
+        with harness(LockstepConfig(seed=0)) as ls:
+            while ls.loop.phase is not Phase.WALK:
+                assert ls.t_s < 10.0
+                ls.step()
+            _run(ls, ls.t_s + 0.5)
+            ticks = ls.loop.stats.ticks
+            ls.kill_controller()
+            killed_at = ls.t_s
+            while not ls.axes_idle():
+                assert ls.t_s < killed_at + 1.0, "the drivers' watchdogs never disarmed the axes"
+                ls.step()
+            idle_at.append(ls.t_s - killed_at)
+            assert ls.loop.stats.ticks == ticks
+            if isinstance(ls, SyncedLockstep):
+                periods = int(round(idle_at[-1] * ls.config.controller.rate_hz))
+                assert ls.plant_bus.stats["alone"] == pytest.approx(periods, abs=1) and periods > 10
+                assert ls.sim_clock.stats["ends"] == ticks
+    assert idle_at[1] == idle_at[0]  # the watchdogs acted on simulated time: the same instant
+
+
+def test_the_plant_waits_for_the_end_of_its_own_period_and_keeps_the_frames_before_it():
+    import can
+
+    from hil.lockstep.synced import PlantSyncBus
+
+    plant = PlantSyncBus(can.Bus(interface="virtual", channel="synced-plant-unit"))
+    ctl = can.Bus(interface="virtual", channel="synced-plant-unit")
+    try:
+        def eop(t_s: float) -> can.Message:
+            return can.Message(arbitration_id=END_OF_PERIOD_ID, data=struct.pack("<d", t_s), is_extended_id=True)
+
+        plant.publish_sync(0.004)
+        m = ctl.recv(timeout=0.0)
+        assert m.is_extended_id and m.arbitration_id == SIM_SYNC_ID and bytes(m.data) == struct.pack("<d", 0.004)
+        ctl.send(eop(0.002))  # a late answer to the previous sync
+        ctl.send(can.Message(arbitration_id=0x00C, data=bytes(8), is_extended_id=False))
+        ctl.send(eop(0.004))
+        ctl.send(can.Message(arbitration_id=0x02C, data=bytes(8), is_extended_id=False))
+        assert plant.wait_end_of_period(0.004, 0.0) is True
+        assert plant.stats["stale_ends"] == 1 and plant.stats["ends"] == 1
+        ctl.send(can.Message(arbitration_id=SIM_SYNC_ID, data=bytes(8), is_extended_id=True))  # another plant's
+        ids = [m.arbitration_id for m in iter(lambda: plant.recv(timeout=0.0), None)]
+        assert ids == [0x00C, 0x02C]  # in order, and no sync or end-of-period frame
+        assert plant.stats["hidden"] == 1
+        assert plant.wait_end_of_period(0.006, 0.0) is False and plant.stats["alone"] == 1
+        with pytest.raises(ValueError):
+            plant.publish_sync(math.inf)
+    finally:
+        plant.shutdown()
+        plant.inner.shutdown()
+        ctl.shutdown()
