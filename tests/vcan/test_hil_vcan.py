@@ -121,7 +121,18 @@ def test_replay_reproduces_the_controllers_decisions(hil_run):
     assert done.returncode == 0, done.stderr[-3000:]
     result = json.loads(done.stdout)
     assert result["compared_steps"] > 10
-    assert result["matching_steps"] / result["compared_steps"] >= 0.95, result["mismatches"][:5]
+    lost = result["frames_lost"]
+    assert isinstance(lost, int) and lost >= 0, lost  # counted on SocketCAN (SO_RXQ_OVFL), never unknown here
+    if lost:  # the replayed controller cannot read what the live one read: no reproduction is claimed
+        assert result["as_live"] is False
+        assert f"the recorder lost {lost} frame" in done.stderr and "not a reproduction" in done.stderr, done.stderr[-2000:]
+        return
+    assert result["as_live"] is True
+    assert result["tick_source"] == "live ticks and frame counts"
+    # With nothing lost, every decision is reproduced (issue 16). (Replay finds where the live
+    # controller's reads start in the log from the median over all ticks, not from tick 0 alone,
+    # which was 14-17 frames off inside User-Mode Linux and cost one decision in 42.)
+    assert result["matching_steps"] == result["compared_steps"], result["mismatches"][:5]
 
 
 # -- fault injection: kill -9 of the controller, frame loss through the man-in-the-middle node ------
