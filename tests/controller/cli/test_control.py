@@ -314,11 +314,17 @@ class Daemon:
         self.leg.start()
         self.thread.start()
 
-        def socket_made() -> bool:
+        def answering() -> bool:  # the file exists once bound, but a connect is refused until listen()
             assert self.error is None, self.error
-            return os.path.exists(self.path)
+            if not os.path.exists(self.path):
+                return False
+            try:
+                request(self.path, "status")
+            except ControlError:
+                return False
+            return True
 
-        wait_for(f"the daemon's control socket {self.path}", socket_made)
+        wait_for(f"the daemon answering on its control socket {self.path}", answering)
         return self
 
     def __exit__(self, *exc) -> None:
