@@ -120,7 +120,7 @@ def bench_bus_load(seconds: float, seed: int = 0, bitrate: int = 1_000_000) -> d
                 ls.step()
                 while (msg := tap.recv(timeout=0.0)) is not None:
                     data = bytes(msg.dlc) if msg.is_remote_frame else bytes(msg.data)
-                    bits += frame_bits(msg.arbitration_id, data, remote=msg.is_remote_frame)
+                    bits += frame_bits(msg.arbitration_id, data, extended=msg.is_extended_id, remote=msg.is_remote_frame)
                     frames += 1
                     route = BusContract.load().route(msg.arbitration_id)
                     name = route.codec.name if route else hex(msg.arbitration_id)

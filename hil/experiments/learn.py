@@ -126,13 +126,15 @@ class LearnConfig:
 class LearningRun:
     """One learning run: build with a config, call :meth:`run`, read ``trials`` and the weights."""
 
-    def __init__(self, config: LearnConfig, premotor=None) -> None:
+    def __init__(self, config: LearnConfig, premotor=None, harness: type[Lockstep] = Lockstep) -> None:
+        """``harness``: the lockstep class that joins plant and controller (default :class:`Lockstep`;
+        :class:`hil.lockstep.synced.SyncedLockstep` runs the same through the simulated-time protocol)."""
         self.config = config
         self._near_m: float | None = None  # the current obstacle's near edge (ground truth)
         if premotor is None:  # None from the registry too: the controller's own premotor
             premotor = get_method(config.method).build(config.controller, config.learning, config.seed,
                                                       self._true_distance_m)
-        self.ls = Lockstep(config.lockstep(), premotor=premotor)
+        self.ls = harness(config.lockstep(), premotor=premotor)
         self.rng = np.random.default_rng(config.seed)
         self.tracker = FootfallTracker(self.ls.plant)
         self.trials: list[dict[str, Any]] = []

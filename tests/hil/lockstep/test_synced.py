@@ -18,9 +18,8 @@ from hil.lockstep.synced import SyncedLockstep
 from protocol.contract import END_OF_PERIOD_ID, SIM_SYNC_ID
 
 
-def _learn(monkeypatch, harness: type) -> tuple[list[str], dict]:
-    monkeypatch.setattr(learn, "Lockstep", harness)  # LearningRun builds Lockstep(config.lockstep(), ...)
-    run = learn.LearningRun(learn.LearnConfig(trials=3, seed=0))
+def _learn(harness: type) -> tuple[list[str], dict]:
+    run = learn.LearningRun(learn.LearnConfig(trials=3, seed=0), harness=harness)
     try:
         trials = run.run()
         assert type(run.ls) is harness
@@ -35,9 +34,9 @@ def _learn(monkeypatch, harness: type) -> tuple[list[str], dict]:
     return [json.dumps(t, sort_keys=True) for t in trials], facts
 
 
-def test_learning_through_the_sync_protocol_gives_the_in_process_records(monkeypatch):
-    plain, plain_facts = _learn(monkeypatch, Lockstep)
-    synced, facts = _learn(monkeypatch, SyncedLockstep)
+def test_learning_through_the_sync_protocol_gives_the_in_process_records():
+    plain, plain_facts = _learn(Lockstep)
+    synced, facts = _learn(SyncedLockstep)
     assert len(plain) == 3
     assert synced == plain  # per trial, every field
     # the same clock and the same bus, seen from both ends
