@@ -5,12 +5,15 @@ an optional constant load torque, integrated with semi-implicit (symplectic) Eul
 first, then position with the new velocity. :class:`FakeSensorSource` returns whatever range,
 range profile and contacts a test sets. :class:`FakeBus` is an in-memory python-can bus: frames
 pushed into it are received in order, frames sent are kept, and it raises whatever error a test
-sets, on receive or on send.
+sets, on receive or on send. :class:`FsyncSpy` records every ``os.fsync`` (which file, which folder,
+in what order).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import stat
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Iterable
@@ -132,3 +135,33 @@ def drain(bus) -> list:
         out.append(msg)
         msg = bus.recv(0)
     return out
+
+
+class FsyncSpy:
+    """Wraps ``os.fsync`` (through pytest's ``monkeypatch``): records, for each call, the
+    descriptor's (device, inode) as ``id``, whether it is a folder (``dir``), the inode at ``watch``
+    at that moment (``at_path``, None if nothing is there) and the descriptor's path (``path``).
+    How the tests see that a writer fsyncs the file and its folder, in order, without kill -9."""
+
+    def __init__(self, monkeypatch, watch) -> None:
+        self.calls: list[dict] = []
+        self.watch = watch
+        real = os.fsync
+
+        def spy(fd):
+            st = os.fstat(fd)
+            try:
+                at_path = os.stat(self.watch).st_ino
+            except FileNotFoundError:
+                at_path = None
+            self.calls.append({"id": (st.st_dev, st.st_ino), "dir": stat.S_ISDIR(st.st_mode), "at_path": at_path,
+                               "path": os.readlink(f"/proc/self/fd/{fd}")})
+            return real(fd)
+
+        monkeypatch.setattr(os, "fsync", spy)
+
+
+def ident(path) -> tuple[int, int]:
+    """(device, inode) of ``path``: what :class:`FsyncSpy` records as ``id``."""
+    st = os.stat(path)
+    return st.st_dev, st.st_ino

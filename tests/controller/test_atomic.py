@@ -6,39 +6,12 @@ from __future__ import annotations
 
 import json
 import os
-import stat
 
 import pytest
 
 from controller import atomic
 from controller.atomic import fsync_dir, write_json_atomic, write_text_atomic
-
-
-class FsyncSpy:
-    """Wraps ``os.fsync``: records, for each call, the descriptor's (device, inode), whether it is a
-    folder, and the inode at ``watch`` at that moment (None if nothing is there)."""
-
-    def __init__(self, monkeypatch, watch):
-        self.calls: list[dict] = []
-        self.watch = watch
-        real = os.fsync
-
-        def spy(fd):
-            st = os.fstat(fd)
-            try:
-                at_path = os.stat(self.watch).st_ino
-            except FileNotFoundError:
-                at_path = None
-            self.calls.append({"id": (st.st_dev, st.st_ino), "dir": stat.S_ISDIR(st.st_mode), "at_path": at_path,
-                               "path": os.readlink(f"/proc/self/fd/{fd}")})
-            return real(fd)
-
-        monkeypatch.setattr(os, "fsync", spy)
-
-
-def ident(path) -> tuple[int, int]:
-    st = os.stat(path)
-    return st.st_dev, st.st_ino
+from tests.fakes import FsyncSpy, ident
 
 
 @pytest.mark.parametrize("existing", [False, True], ids=["new", "replacing"])

@@ -17,6 +17,7 @@ from controller.stepping.weights import (SCHEMA_VERSION, WeightsError, checksum,
                                          prev_path, read_weights, save_weights, stale_temporaries)
 from hil.cli import main
 from hil.faults.killsave import kill_during_saves
+from tests.fakes import FsyncSpy, ident
 
 W = np.linspace(-0.1, 0.1, 28)
 CHECKSUM_ZEROS_2 = "4255edc5df120c7e33328bbbfec3ae9dddd983d36ebd119e94b4a9bbc345c701"  # schema 2, pinned
@@ -383,33 +384,6 @@ def test_an_unknown_version_is_refused_naming_file_and_version_and_is_never_writ
 
 
 # --------------------------------------------------------------------------- fsync, observed
-class FsyncSpy:
-    """Wraps ``os.fsync``: for each call, the descriptor's (device, inode), whether it is a folder,
-    and the inode at ``watch`` at that moment (None if nothing is there)."""
-
-    def __init__(self, monkeypatch, watch):
-        import stat
-
-        self.calls = []
-        real = os.fsync
-
-        def spy(fd):
-            st = os.fstat(fd)
-            try:
-                at_path = os.stat(watch).st_ino
-            except FileNotFoundError:
-                at_path = None
-            self.calls.append({"id": (st.st_dev, st.st_ino), "dir": stat.S_ISDIR(st.st_mode), "at_path": at_path})
-            return real(fd)
-
-        monkeypatch.setattr(os, "fsync", spy)
-
-
-def ident(path):
-    st = os.stat(path)
-    return st.st_dev, st.st_ino
-
-
 @pytest.mark.parametrize("existing", [False, True], ids=["first save", "replacing"])
 def test_save_fsyncs_the_new_file_before_the_rename_and_the_folder_after_it(tmp_path, monkeypatch, existing):
     path = tmp_path / "w.npz"
