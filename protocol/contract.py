@@ -15,8 +15,8 @@ SDO: RxSdo and TxSdo carry an endpoint's value in bytes 4..7, whose type depends
 The DBC keeps ODrive's raw ``Value`` (uint32); :func:`sdo_value_bits` and :func:`sdo_bits_value`
 convert a float32 endpoint's value to and from it.
 
-Simulated time (``hil --clock sim``): ``ES_Sim_Sync`` and ``ES_End_Of_Period`` are the only
-messages on 29-bit extended ids (:data:`SIM_SYNC_ID`, :data:`END_OF_PERIOD_ID`); they belong to
+Simulated time (``hil --clock sim``): ``ES_Sim_Sync``, ``ES_End_Of_Period`` and
+``ES_Controller_State`` are the only messages on 29-bit extended ids (:data:`SIM_TIME_IDS`); they belong to
 no node, so they are in :attr:`BusContract.extended` (by frame id), never in ``odrive`` or
 ``sensor_board``, and :meth:`BusContract.route` (11-bit ids only) never returns them. Their
 ``Sim_Time`` is a float64 (the plant's clock bit for bit), packed with ``struct``'s ``d``.
@@ -51,6 +51,12 @@ SIM_SYNC_ID = 0x1FFFFF00
 """29-bit id of ``ES_Sim_Sync`` (the plant's simulated time, once per control period)."""
 END_OF_PERIOD_ID = 0x1FFFFF01
 """29-bit id of ``ES_End_Of_Period`` (the controller has ticked for a sync)."""
+CONTROLLER_STATE_ID = 0x1FFFFF02
+"""29-bit id of ``ES_Controller_State`` (the controller's phase, sent before an end-of-period when it changed)."""
+SIM_TIME_IDS = frozenset({SIM_SYNC_ID, END_OF_PERIOD_ID, CONTROLLER_STATE_ID})
+"""The simulated-time protocol's ids: no node, fault or controller ``BusIO`` ever handles them."""
+PHASE_CODES: tuple[str, ...] = ("wait_nodes", "inactive", "arming", "ramp", "walk", "fault")
+"""``ES_Controller_State.Phase``: the code of each phase (:class:`controller.supervisor.Phase` values), in DBC order."""
 DBC_PATH = Path(str(resources.files("protocol").joinpath("elegant_stepping.dbc")))
 
 SHORT_FRAMES: Mapping[str, int] = MappingProxyType({

@@ -76,6 +76,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the control socket (default: the configuration's [service] control_socket, else "
                         "/run/elegant-stepping/control.sock); 'none': no control socket")
     p.add_argument("--seconds", type=positive(float), default=None, help="stop after this long (default: run)")
+    p.add_argument("--bursts", default=None, metavar="FILE",
+                   help="write every tick's clock and CPG burst length here (float64 pairs; for figures)")
+    p.add_argument("--clock", choices=("wall", "sim"), default="wall",
+                   help="wall: tick at the fixed rate on this machine's clock (a real leg; the default); sim: tick "
+                        "once per ES_Sim_Sync frame of a simulated plant, on its simulated time (hil --clock sim)")
 
 
 STOPPED_AS_ASKED = ("SIGTERM", "SIGINT", "SIGHUP", "SIGUSR1", "event")
@@ -104,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
         records_max_bytes=service.records_max_bytes if service is not None else None,
         records_keep=service.records_keep if service is not None else 3,
         weights_generations=getattr(weights_cfg, "generations", 3),
-        restore_signals=False)  # a signal after the stop, while this prints, still changes nothing
+        restore_signals=False, sim_time=args.clock == "sim",
+        bursts=args.bursts)  # a signal after the stop, while this prints, still changes nothing
     final.pop("weights", None)
     print(json.dumps(final), file=sys.stderr)
     if final["weights_saved"] is False:

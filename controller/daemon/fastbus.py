@@ -5,8 +5,9 @@ python-can's ``SocketcanBus.recv(timeout=0)`` costs a ``select`` and a ``recvmsg
 a ptrace round trip (figures: docs/hil.md), so these add up to a good part of a CPU at our
 frame rates. :class:`LeanSocketcan` keeps the bus python-can opened (its configuration,
 filters, timestamps, frame layout) and only trims the calls: the socket is made non-blocking,
-``recv(0)`` is one ``recvmsg`` (``EAGAIN``: no frame), ``send`` one ``send``. Any other bus, or
-a ``recv`` with a timeout, goes to python-can unchanged.
+``recv(0)`` is one ``recvmsg`` (``EAGAIN``: no frame), ``send`` one ``send``; a ``recv`` with a
+timeout tries first and waits in one ``select`` only when no frame is there (the simulated-time
+protocol's waits: ``hil --clock sim``). Any other bus goes to python-can unchanged.
 
 With ``timestamps=False`` (the controller and the plant: neither reads a frame's timestamp)
 frames are read with a plain ``recv``: no kernel timestamp (``timestamp`` is 0.0), and no
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import select
 
 import can
 
@@ -79,14 +81,16 @@ class LeanSocketcan:
         self._capture = capture_message if timestamps else _capture_plain
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
-        if timeout:
-            self.socket.setblocking(True)
-            try:
-                msg = self.bus.recv(timeout)
-                self.received += msg is not None
-                return msg
-            finally:
-                self.socket.setblocking(False)
+        """The next frame, or None: at once when none waits (``timeout`` None or 0), else after
+        waiting up to ``timeout`` [s] in one ``select`` (a frame already waiting costs no select)."""
+        msg = self._try()
+        if msg is not None or not timeout:
+            return msg
+        if not select.select((self.socket,), (), (), timeout)[0]:
+            return None
+        return self._try()
+
+    def _try(self) -> can.Message | None:
         try:
             msg = self._capture(self.socket)
             self.received += 1

@@ -159,9 +159,11 @@ class Records:
     ``monotonic``: the clock the records' times are on (the daemon's tick clock)."""
 
     def __init__(self, path: str | Path | None, max_bytes: int | None = None, keep: int = 3,
-                 monotonic: Callable[[], float] = time.monotonic) -> None:
+                 monotonic: Callable[[], float] = time.monotonic, sim_time: bool = False) -> None:
         self.format = records_format_line()
         self.clock: dict[str, Any] = {"kind": "clock", "realtime_minus_monotonic_s": time.time() - monotonic()}
+        if sim_time:  # the records' times are the plant's simulated time: no wall clock to convert to
+            self.clock = {"kind": "clock", "clock": "sim", "realtime_minus_monotonic_s": None}
         self.last_phase: dict[str, Any] | None = None
         self.out = None if not path else RotatingFile(path, max_bytes, keep, header=self._header,
                                                       rotate_at_start=True)
@@ -228,7 +230,8 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                    records_max_bytes: int | None = None, records_keep: int = 3,
                    weights_generations: int = 3, stop_event: threading.Event | None = None,
                    restore_signals: bool = True, clock: Callable[[], float] | None = None,
-                   sleep: Callable[[float], None] | None = None) -> dict[str, Any]:
+                   sleep: Callable[[float], None] | None = None, sim_time: bool = False,
+                   bursts: str | Path | None = None) -> dict[str, Any]:
     """Run until a stop signal (SIGTERM, SIGINT, SIGHUP, SIGUSR1), ``duration_s`` or ``stop_event``.
 
     ``ticks``: write, for every tick, its clock and the number of frames it read from the bus
@@ -243,7 +246,12 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
     ``duration_s``); ``restore_signals=False`` leaves them in place after the return, so a late
     signal still changes nothing (the command line's ``run``). ``clock``/``sleep``: the tick clock
     and the sleep between ticks and between the stop's IDLE frames (default ``time.monotonic`` and
-    ``time.sleep``; a test steps a simulated leg inside ``sleep``).
+    ``time.sleep``; a test steps a simulated leg inside ``sleep``). ``bursts``: write, for every
+    tick, its clock and the CPG's burst length after it [s] (pairs of float64, native byte order,
+    not rotated: for figures of a session, ``hil --clock sim``'s traces). ``sim_time``: tick on the
+    plant's simulated time instead (``--clock sim``, :mod:`controller.daemon.simclock`: once per
+    ``ES_Sim_Sync``, with its time as the clock, answered with ``ES_End_Of_Period``; never on a
+    real leg); ``duration_s`` then counts simulated seconds from the first tick.
     Raises :class:`StartError` (an :class:`~controller.errors.InputError`, nothing started) when
     the weights' folder is not writable, the control socket cannot be made, the weights cannot be
     set aside, or the records or ticks file cannot be written; :class:`controller.errors.BusError`
@@ -302,6 +310,11 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             server.close()
         raise
     bus = lean(raw_bus, timestamps=False)
+    sim_clock = None
+    if sim_time:
+        from controller.daemon.simclock import SimClockBus
+
+        sim_clock = bus = SimClockBus(bus)
     loop = ControlLoop(config, bus, premotor)
     if deploy is not None:
         loop.drivers_watchdog_timeout_s = deploy.drivers.watchdog_timeout_s  # written through RxSdo at arming
@@ -310,17 +323,23 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
             log.warning("arming blocked: %s", loop.arm_blocked)
     # bus errors and bus-off: BusIO closes the bus and opens a new one with backoff
     loop.io.reopen = lambda: lean(can.Bus(**bus_kw), timestamps=False)
+    if sim_clock is not None:  # a bus reopened in simulated time is read through a clock of its own
+        loop.io.reopen = lambda: SimClockBus(lean(can.Bus(**bus_kw), timestamps=False))
     autosave = None if weights is None else WeightAutosave(weights, config.encoder.cell_width_m, autosave_config,
                                                            saved=initial, generations=weights_generations)
-    rec = tick_file = None
+    rec = tick_file = burst_file = None
     try:
         what = records
-        rec = Records(records, records_max_bytes, records_keep, monotonic=clock)
+        rec = Records(records, records_max_bytes, records_keep, monotonic=clock, sim_time=sim_time)
         what = ticks
         tick_file = None if not ticks else RotatingFile(ticks, records_max_bytes, records_keep, binary=True,
                                                         rotate_at_start=True)
+        what = bursts
+        burst_file = None if not bursts else open(bursts, "wb")
     except BaseException as exc:
         give_back()
+        if tick_file is not None:
+            tick_file.close()
         if rec is not None:
             rec.close()
         if server is not None:
@@ -338,6 +357,7 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
     stats = loop.stats
     flush_every = max(1, int(round(0.1 * config.rate_hz)))
     tick_buf = array("d")
+    burst_buf = array("d")
     received = loop.io.received  # frames read by the loop, across bus reopens
     version = _version()
     tick_now = {"now": math.nan}
@@ -378,11 +398,34 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
 
     t0 = pacer.start()
     t_end = math.inf if duration_s is None else t0 + duration_s
-    log.info("controller %s on %s at %.0f Hz%s", version, bus_kw, config.rate_hz,
-             "" if server is None else f", control socket {server.path}")
+    log.info("controller %s on %s at %.0f Hz%s%s", version, bus_kw, config.rate_hz,
+             "" if server is None else f", control socket {server.path}",
+             ", on the plant's simulated time" if sim_clock is not None else "")
+    sync = None
+    no_sync_since = clock()
     try:
         while not stop["flag"]:
-            now = pacer.wait()
+            if sim_clock is not None:
+                if sync is not None:
+                    sim_clock.end_period(sync, loop.phase.value)  # the tick's records are written
+                    sync = None
+                sync = sim_clock.wait_sync(0.1)  # short waits: a stop signal is seen within 0.1 s
+                if sync is None:
+                    if clock() - no_sync_since > 5.0:
+                        log.warning("no sync from the plant for %.0f s", clock() - no_sync_since)
+                        no_sync_since = clock()
+                    if stop_event is not None and stop_event.is_set():
+                        stop["by"] = "event"
+                        break
+                    continue
+                no_sync_since = clock()
+                now = sync.t_s
+                if now <= 0.0:  # the opening sync: answered, no tick (no time has passed)
+                    continue
+                if duration_s is not None and math.isinf(t_end):
+                    t_end = now + duration_s
+            else:
+                now = pacer.wait()
             if now >= t_end:
                 break
             if stop_event is not None and stop_event.is_set():
@@ -403,6 +446,12 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
                 if len(tick_buf) >= 512:
                     tick_file.write_array(tick_buf)
                     del tick_buf[:]
+            if burst_file is not None:
+                burst_buf.append(now)
+                burst_buf.append(loop.cpg.burst_s)
+                if len(burst_buf) >= 512:
+                    burst_buf.tofile(burst_file)
+                    del burst_buf[:]
             if loop.phase is not phase:
                 phase = loop.phase
                 notify.phase(phase, loop.supervisor.fault_cause)
@@ -438,6 +487,9 @@ def run_controller(bus_kw: dict[str, Any], config: ControllerConfig = Controller
         if tick_file is not None:
             tick_file.write_array(tick_buf)
             tick_file.close()
+        if burst_file is not None:
+            burst_buf.tofile(burst_file)
+            burst_file.close()
         for s in stats.steps[rec.steps_written:]:
             rec.write(step_dict(s))
         w = weights_of(loop.premotor)

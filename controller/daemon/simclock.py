@@ -23,11 +23,26 @@ the controller and the bus (:class:`hil.faults.model.FaultyBus`) wrap this bus, 
 see, lose or delay a sync or end-of-period frame.
 
 A period: ``sync = clock.wait_sync(timeout_s)``; ``loop.tick(sync.t_s)``;
-``clock.end_period(sync)`` (:func:`run_period` does the three).
+``clock.end_period(sync, phase)`` (:func:`run_period` does the three).
 
-Counters (``stats``): ``syncs`` claimed, ``ends`` sent, ``foreign_end_of_period`` (another
-controller's, hidden), ``malformed_sync`` (a sync with the wrong length, a remote frame, or a
-time that is not finite: dropped, never ticked on).
+**Opening.** Simulated time opens with a sync at ``t_s = 0.0``, which the plant sends before its
+first physics step and repeats until it is answered (the controller may start after the plant):
+the controller answers it and does **not** tick (no time has passed; the in-process lockstep's
+first tick is at the end of the first period). :func:`is_opening` says which sync that is.
+
+**Stale syncs.** A sync whose time is not later than the last one claimed (a repeat of the opening
+sync, a plant that re-sent a sync it had given up on) is dropped, never ticked on, and counted in
+``stale_syncs``: a tick is never repeated for a time already lived.
+
+**The controller's phase.** :meth:`SimClockBus.end_period` with ``phase`` sends
+``ES_Controller_State`` (:data:`~protocol.contract.CONTROLLER_STATE_ID`, the phase's code in
+:data:`~protocol.contract.PHASE_CODES`) just before the end-of-period, in the first period and
+whenever the phase changed: the experiment stepping the plant learns at the same simulated instant
+as the in-process lockstep that the leg walks, or stopped safely.
+
+Counters (``stats``): ``syncs`` claimed, ``ends`` sent, ``states`` sent, ``stale_syncs``,
+``foreign_end_of_period`` (another controller's, hidden), ``malformed_sync`` (a sync with the
+wrong length, a remote frame, or a time that is not finite: dropped, never ticked on).
 """
 
 from __future__ import annotations
@@ -41,7 +56,7 @@ from typing import Callable, NamedTuple
 import can
 
 from protocol import BusContract
-from protocol.contract import END_OF_PERIOD_ID, SIM_SYNC_ID
+from protocol.contract import CONTROLLER_STATE_ID, END_OF_PERIOD_ID, PHASE_CODES, SIM_SYNC_ID
 
 log = logging.getLogger(__name__)
 
@@ -69,11 +84,15 @@ class SimClockBus(can.BusABC):
         contract = contract or BusContract.load()
         self._sync_codec = contract.codec("ES_Sim_Sync")
         self._eop_codec = contract.codec("ES_End_Of_Period")
+        self._state_codec = contract.codec("ES_Controller_State")
+        self._last_claimed: float = -math.inf  # the time of the last sync claimed
+        self._phase_sent: str | None = None
         self._buffer: deque[can.Message] = deque()  # frames before the pending sync
         self._pending: float | None = None  # a sync read from the bus, not yet claimed
         self._current: SimSync | None = None  # claimed by wait_sync, not yet ended
         self._periods = 0
-        self.stats: dict[str, int] = {"syncs": 0, "ends": 0, "foreign_end_of_period": 0, "malformed_sync": 0}
+        self.stats: dict[str, int] = {"syncs": 0, "ends": 0, "states": 0, "stale_syncs": 0,
+                                      "foreign_end_of_period": 0, "malformed_sync": 0}
         super().__init__(channel=getattr(inner, "channel_info", "simclock"))
 
     @property
@@ -95,11 +114,14 @@ class SimClockBus(can.BusABC):
                 arb = msg.arbitration_id
                 if arb == SIM_SYNC_ID:
                     t_s = self._sync_time(msg)
-                    if t_s is not None:
-                        self._pending = t_s
-                        return None
-                    continue
-                if arb == END_OF_PERIOD_ID:
+                    if t_s is None:
+                        continue
+                    if t_s <= self._last_claimed or (self._pending is not None and t_s <= self._pending):
+                        self.stats["stale_syncs"] += 1  # a time already lived (or already pending)
+                        continue
+                    self._pending = t_s
+                    return None
+                if arb == END_OF_PERIOD_ID or arb == CONTROLLER_STATE_ID:
                     self.stats["foreign_end_of_period"] += 1
                     continue
             return msg
@@ -145,20 +167,28 @@ class SimClockBus(can.BusABC):
                 elif self._pending is None:
                     return None  # timed out
         sync = SimSync(self._periods, self._pending)
+        self._last_claimed = self._pending
         self._pending = None
         self._current = sync
         self._periods += 1
         self.stats["syncs"] += 1
         return sync
 
-    def end_period(self, sync: SimSync) -> None:
-        """Send the end-of-period frame for ``sync`` (the claimed one); the next frames belong to
-        the next sync. A send error (``can.CanError``) is raised to the caller, with the period
-        still ended: the plant steps on after its grace either way."""
+    def end_period(self, sync: SimSync, phase: str | None = None) -> None:
+        """Send the end-of-period frame for ``sync`` (the claimed one), preceded by
+        ``ES_Controller_State`` when ``phase`` (a :class:`~controller.supervisor.Phase` value) is
+        given and differs from the last one sent; the next frames belong to the next sync. A send
+        error (``can.CanError``) is raised to the caller, with the period still ended: the plant
+        steps on after its grace either way."""
         if sync != self._current:
             raise ValueError(f"end_period for {sync!r}, but the sync being answered is {self._current!r}")
         self._current = None
         self.stats["ends"] += 1
+        if phase is not None and phase != self._phase_sent:
+            self._phase_sent = phase
+            self.stats["states"] += 1
+            self.inner.send(can.Message(arbitration_id=CONTROLLER_STATE_ID, is_extended_id=True,
+                                        data=self._state_codec.pack(PHASE_CODES.index(phase))))
         self.inner.send(can.Message(arbitration_id=END_OF_PERIOD_ID, is_extended_id=True,
                                     data=self._eop_codec.pack(sync.t_s)))
 
@@ -174,15 +204,22 @@ class SimClockBus(can.BusABC):
         self.inner.shutdown()
 
 
+def is_opening(sync: SimSync) -> bool:
+    """The sync that opens simulated time (``t_s`` 0.0): answered, never ticked on."""
+    return sync.t_s <= 0.0
+
+
 def run_period(loop, clock: SimClockBus, timeout_s: float | None) -> SimSync | None:
     """One controller period in simulated time: wait for the sync, tick ``loop`` (a
-    :class:`~controller.loop.ControlLoop` whose bus is ``clock``, or wraps it) with its time, end
-    the period. None (and no tick) if no sync came within ``timeout_s``."""
+    :class:`~controller.loop.ControlLoop` whose bus is ``clock``, or wraps it) with its time
+    (not for the opening sync), end the period with the loop's phase. None (and no tick) if no
+    sync came within ``timeout_s``."""
     sync = clock.wait_sync(timeout_s)
     if sync is None:
         return None
     try:
-        loop.tick(sync.t_s)
+        if not is_opening(sync):
+            loop.tick(sync.t_s)
     finally:
-        clock.end_period(sync)
+        clock.end_period(sync, loop.phase.value)
     return sync

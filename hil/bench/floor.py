@@ -35,7 +35,8 @@ def probe(rate_hz: float, stop: Callable[[], bool], *, clock: Callable[[], float
     """Tick at ``rate_hz`` until ``stop()`` (asked after each tick, the first included); the
     floor: ``max_period_s`` (the longest period, the platform's longest stall of this process,
     the nominal period included; None before a second tick), ``ticks``, ``late_ticks`` (periods
-    over 1.5 nominal), ``skipped``, ``period_s``. ``clock``/``sleep``: the pacer's (a test's own
+    over 1.5 nominal), ``skipped``, ``period_s``, ``period_jitter_us`` (|period - nominal|:
+    median, p99, max, as the controller's pacer reports its own). ``clock``/``sleep``: the pacer's (a test's own
     clock; default the monotonic clock). ``on_first_tick``: called once the first tick is done."""
     from controller.daemon.pacing import Pacer
 
@@ -54,7 +55,18 @@ def probe(rate_hz: float, stop: Callable[[], bool], *, clock: Callable[[], float
     s = pacer.summary()
     periods = max(0, s["ticks"] - 1)
     return {"rate_hz": rate_hz, "period_s": pacer.period_s, "ticks": s["ticks"], "late_ticks": s["late_ticks"],
-            "skipped": s["skipped"], "max_period_s": pacer.max_period_s if periods else None}
+            "skipped": s["skipped"], "max_period_s": pacer.max_period_s if periods else None,
+            "period_jitter_us": s["period_jitter_us"]}
+
+
+def side_by_side(figure: float | None, floor: float | None) -> dict[str, Any]:
+    """A figure beside its floor: ``{"hil", "floor", "ratio", "excess"}`` (ratio = figure / floor,
+    None when the floor is 0 or either is missing; excess = figure - floor)."""
+    ratio = None
+    if figure is not None and floor is not None and floor > 0:
+        ratio = figure / floor
+    excess = None if figure is None or floor is None else figure - floor
+    return {"hil": figure, "floor": floor, "ratio": ratio, "excess": excess}
 
 
 class FloorProbe:

@@ -45,6 +45,7 @@ import uuid
 from array import array
 from pathlib import Path
 from typing import Any, Sequence
+from hil.bench.floor import side_by_side  # noqa: F401 - also this module's, for its readers
 
 SESSION_KIND = "bench-hil"
 SESSION_VERSION = 1  # the session file's format version: raise it when a reader of the old one could misread it
@@ -79,12 +80,6 @@ def tick_figures(tick_times_s: Sequence[float], period_s: float, late_factor: fl
     }
 
 
-def side_by_side(figure: float | None, floor: float | None) -> dict[str, Any]:
-    ratio = None
-    if figure is not None and floor is not None and floor > 0:
-        ratio = figure / floor
-    excess = None if figure is None or floor is None else figure - floor
-    return {"hil": figure, "floor": floor, "ratio": ratio, "excess": excess}
 
 
 def compare(hil: dict[str, Any], floor_loop: dict[str, Any], echo: dict[str, Any]) -> dict[str, Any]:

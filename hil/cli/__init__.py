@@ -29,18 +29,20 @@ VERBS: tuple[Verb, ...] = (
     Verb("animate", "hil.cli.animate", "GIFs of the leg before and after learning (PyBullet renderer)", BOTH),
     Verb("sweep", "hil.cli.sweep", "learning runs over seeds x obstacle heights x methods, with a report", BOTH),
     Verb("firmware-sim", "hil.cli.firmware_sim",
-         "the simulated leg (plant, drivers, sensor board) on a CAN bus, real time", SIM),
+         "the simulated leg (plant, drivers, sensor board) on a CAN bus, real time or simulated time", SIM),
     Verb("controller", "controller.cli.run", "the controller daemon at its fixed rate on a CAN bus "
                                              "(the leg's `elegant-stepping-leg run`)"),
     Verb("config", "controller.cli.config", "the configuration file (TOML): check it, or show the effective one"),
     Verb("bringup", "controller.cli.bringup", "bring-up checklist on real hardware: nodes, versions, errors, bus "
                                               "voltage, positions, small slow moves; PASS/FAIL per item"),
     Verb("hil", "hil.cli.session", "learning trials with the controller and the simulated leg as two processes "
-                                   "on a real SocketCAN bus (inside User-Mode Linux where the kernel has no CAN)", SIM),
+                                   "on a real SocketCAN bus (inside User-Mode Linux where the kernel has no CAN), on "
+                                   "the wall clock or the plant's simulated time (--clock sim)", SIM),
     Verb("dryrun", "hil.cli.dryrun", "the deployment dry run: the systemd unit's command line against the "
                                      "simulated leg on vcan0, playing systemd's notify socket; a checklist", SIM),
     Verb("mitm", "hil.cli.mitm", "a man-in-the-middle node: forward between two SocketCAN channels, "
-                                 "injecting faults; silence a node (SIGUSR1 or --silence-after-s)"),
+                                 "injecting faults; silence a node (SIGUSR1, --silence-after-s, or with --clock sim "
+                                 "--silence-at-sim-s)"),
     Verb("faults", "hil.cli.faults", "the fault-injection matrix: inject every failure mode, report what happened",
          BOTH),
     Verb("replay", "hil.cli.replay", "feed a recorded bus log to the controller offline; print its decisions"),

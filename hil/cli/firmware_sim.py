@@ -28,6 +28,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=positive(float), default=None, help="stop after this much time (default: run)")
     p.add_argument("--steps-per-wake", type=positive(int), default=None,
                    help="physics steps per wake-up (default 1; 2 inside User-Mode Linux)")
+    p.add_argument("--clock", choices=("wall", "sim"), default="wall",
+                   help="wall: physics paced to this machine's clock (the default); sim: simulated time, stepping "
+                        "when the controller has answered each period's sync, the trials of a learning run "
+                        "requested on --scenario (hil --clock sim)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,8 +39,19 @@ def run(args: argparse.Namespace) -> int:
     from hil.session.firmware import run_firmware
     from hil.session.scenario import claim_address
 
+    if args.clock == "sim" and args.scenario is None:
+        from controller.errors import UsageError
+
+        raise UsageError("--clock sim needs --scenario: the learning run is requested on the side channel")
     if args.scenario is not None:
         claim_address(args.scenario)  # before the plant loads: a bad address is refused at once
+    if args.clock == "sim":
+        from hil.session.simplant import run_sim_plant
+
+        final = run_sim_plant(bus_kwargs(args.interface, args.channel, args.bitrate), scenario=args.scenario,
+                              gui=args.gui)
+        print(json.dumps({k: final.get(k) for k in ("t_s", "axes", "host", "sync")}), file=sys.stderr)
+        return 0
     final = run_firmware(bus_kwargs(args.interface, args.channel, args.bitrate), seed=args.seed, gui=args.gui,
                          scenario=args.scenario, range_noise_m=args.range_noise_m,
                          range_dropout_prob=args.range_dropout_prob, duration_s=args.seconds,

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from hil.experiments.journal import prepare_folder
 
     prepare_folder(args.out, "--out", create=False)  # before anything else (no simulation imported yet)
-    from hil.experiments.learn import LearnConfig, RunStopped, learn_into
+    from hil.experiments.learn import FIGURE_TRACES, LearnConfig, RunStopped, learn_into
 
     config = LearnConfig(
         trials=args.trials,
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         range_noise_m=args.range_noise_m,
         learning=not args.no_learning,
         method=args.method,
-        trace_trials=(0, -1),
+        trace_trials=FIGURE_TRACES,
     )
     previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM stops like SIGINT: what finished is kept
     try:

@@ -50,6 +50,10 @@ from hil.lockstep.harness import Lockstep, LockstepConfig
 log = logging.getLogger(__name__)
 
 
+FIGURE_TRACES = (0, -1)
+"""The trials ``learn`` traces for its figures (Fig. 2: the first and the last); ``hil`` traces the same."""
+
+
 @dataclass(frozen=True)
 class LearnConfig:
     """A learning run.
@@ -138,6 +142,10 @@ class LearningRun:
         self.rng = np.random.default_rng(config.seed)
         self.tracker = FootfallTracker(self.ls.plant)
         self.trials: list[dict[str, Any]] = []
+        self.last_times: dict[str, float] = {}
+        """The simulated times [s] of the last trial: its start (``t0_s``), the first footfall beyond
+        the obstacle's near edge (``crossing_s``) and its end (``end_s``), by which a controller's
+        records are matched to it (``hil --clock sim``)."""
 
     def _true_distance_m(self) -> float | None:
         if self._near_m is None:
@@ -218,6 +226,7 @@ class LearningRun:
         touchdowns = list(zip(self.tracker.touchdown_t_s[n_td0:], self.tracker.footfalls_x_m[n_td0:]))
         before = [(t, x) for t, x in touchdowns if x < near]
         crossing_t = next((t for t, x in touchdowns if x >= near), ls.t_s)
+        self.last_times = {"t0_s": t0, "crossing_s": crossing_t, "end_s": ls.t_s}
         steps = loop.stats.steps[n_steps0:]
         # the decisions before the crossing: every gate whose swing began before the foot landed
         # beyond the near edge (the last of them is the crossing swing's own gate)

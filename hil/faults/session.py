@@ -183,10 +183,11 @@ class FaultSession:
     """The fault side of one HIL session: the mitm process, the heartbeat watcher, the event."""
 
     def __init__(self, plan: FaultPlan, channel: str, work: Path, ctl_config: "ControllerConfig",
-                 env: dict[str, str], say: Callable[[str], None] = lambda text: None) -> None:
+                 env: dict[str, str], say: Callable[[str], None] = lambda text: None, clock: str = "wall") -> None:
         if plan.leg_channel == channel:
             raise ValueError(f"the leg's channel must differ from the controller's ({channel})")
         self.plan = plan
+        self.clock = clock  # "sim": the mitm runs on the simulated time of the syncs it forwards
         self.channel = channel
         self.work = work
         self.ctl_config = ctl_config
@@ -220,6 +221,8 @@ class FaultSession:
                "--seed", str(plan.seed), "--json", str(self.work / "mitm.json"), "--ready-file", str(ready)]
         if plan.silence_node is not None:
             cmd += ["--silence-node", str(plan.silence_node)]
+        if self.clock == "sim":
+            cmd += ["--clock", "sim"]
         self._mitm_log = open(self.work / "mitm.log", "w")
         self.mitm = subprocess.Popen(cmd, stdout=self._mitm_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                      env=self.env)
@@ -492,7 +495,9 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
                   direction: str = "both", node: str = "hip", at_trial: int = 1,
                   where: str = "auto", timeout_s: float | None = None) -> dict[str, Any]:
     """One HIL session with one fault, run by ``elegant-stepping hil`` (inside User-Mode Linux
-    where the kernel has no vcan); returns its row of the fault matrix.
+    where the kernel has no vcan); returns its row of the fault matrix. A kill -9 runs on the wall
+    clock (what it measures is wall time); silence and rate faults in simulated time
+    (``--clock sim``: the same row for a seed on any host, :func:`_sim_row`).
 
     ``kind``: ``kill``, ``silence`` (of ``node``) or a rate fault of :data:`hil.faults.model.FAULT_KINDS`
     at ``rate`` per frame in ``direction`` (``both``, ``to_leg``, ``from_leg``). Events happen in
@@ -502,6 +507,9 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
     out.mkdir(parents=True, exist_ok=True)
     argv = [sys.executable, "-m", "hil.cli", "hil", "--trials", str(trials), "--seed", str(seed), "--out", str(out),
             "--where", where, "--quiet"]
+    sim = kind != "kill"  # only the kill -9 row measures the wall clock
+    if sim:
+        argv += ["--clock", "sim"]
     if kind == "kill":
         argv += ["--kill-controller-at-trial", str(at_trial)]
     elif kind == "silence":
@@ -527,7 +535,7 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
     (out / "hil.stderr").write_text(done.stderr)
     row: dict[str, Any] = {"fault": kind, "rate": rate, "direction": direction if kind in FAULT_KINDS else None,
                            "node": node if kind == "silence" else None, "seed": seed, "where": "hil",
-                           "exit_code": done.returncode}
+                           "clock": "sim" if sim else "wall", "exit_code": done.returncode}
     path = out / "metrics.json"
     if not path.exists():
         row["error"] = f"hil wrote no metrics (exit {done.returncode}): {done.stderr[-500:]}"
@@ -535,6 +543,8 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
     from hil.analysis.metrics import success_last
 
     m = json.loads(path.read_text())
+    if sim:
+        return _sim_row(row, m, kind, done, path, time.time() - t0)
     f, h = m.get("fault", {}), m["hil"]
     cmds, weights = f.get("commands", {}), f.get("weights", {})
     event = kind in ("kill", "silence")
@@ -577,9 +587,50 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
     return row
 
 
+SIM_ROW_WALL_KEYS = ("wall_s", "details", "platform", "exit_code")
+"""The keys of a simulated-time row that describe the host, not the run: every other key is the
+same for a seed on a loaded and on a quiet machine."""
+
+
+def _sim_row(row: dict[str, Any], m: dict[str, Any], kind: str, done: subprocess.CompletedProcess, path: Path,
+             wall_s: float) -> dict[str, Any]:
+    """A fault-matrix row of a ``--clock sim`` session (silence, rate faults): every figure in
+    simulated time or counted in frames, so a seed gives the same row on any host
+    (:data:`SIM_ROW_WALL_KEYS` aside)."""
+    from hil.analysis.metrics import success_last
+
+    f, h = m.get("fault", {}), m["hil"]
+    event = kind == "silence"
+    weights = weights_state(path.parent / "weights.npz")
+    row.update({
+        "platform": h.get("where"),
+        "safe_state_ms": f.get("safe_state_sim_ms") if event else None,
+        "axes_idle_ms": f.get("axes_idle_sim_ms") if event else None,
+        "bound_ms": f.get("bound_ms") if event else None,
+        "within_bound": f.get("within_bound") if event else None,
+        "data_lost": bool(weights["exists"] and not weights["loads"]) or (not event and not weights["exists"]),
+        "weights_l1": weights.get("l1"),
+        "success_last_50": None if event else success_last(m.get("trials", []), 50),
+        "successes": sum(t["success"] for t in m.get("trials", [])),
+        "reflexes": h.get("reflexes"),
+        "trials_completed": h.get("trials_completed"),
+        "stopped_at_trial": f.get("at_trial") if event else None,
+        "fault_cause": h.get("fault_cause"),
+        "frames_silenced": f.get("frames_silenced") if event else None,
+        "mitm": None if event else {k: (f.get("mitm") or {}).get(k) for k in ("to_leg", "from_leg")},
+        "axes_at_end": h.get("axes_at_end"),
+        "wall_s": wall_s,
+        "details": str(path),
+    })
+    if done.returncode != 0:
+        row["error"] = f"hil exit {done.returncode}: {done.stderr.strip().splitlines()[-1:] or ''}"
+    return row
+
+
 def hil_rows(out: str | Path, seed: int = 0, trials: int = 10) -> list[dict[str, Any]]:
-    """The HIL rows of the fault matrix: kill -9 of the controller and silence of the hip (3
-    trials, the event in trial 2), 5% frame loss both ways (``trials`` trials)."""
+    """The HIL rows of the fault matrix: kill -9 of the controller (wall clock) and silence of the
+    hip (simulated time; 3 trials, the event in trial 2), 5% frame loss both ways (simulated time,
+    ``trials`` trials)."""
     out = Path(out)
     return [run_hil_fault("kill", None, seed, out / "kill", 3),
             run_hil_fault("silence", None, seed, out / "silence_hip", 3, node="hip"),

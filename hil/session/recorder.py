@@ -48,6 +48,7 @@ from protocol import SENSOR_BOARD_NODE_ID, BusContract, split_arbitration_id
 
 _CONTRACT = BusContract.load()
 CONTROLLER_CMDS = _CONTRACT.odrive_master_cmds  # the DBC's messages sent by the Controller
+_CONTROLLER_EXTENDED = frozenset(i for i, c in _CONTRACT.extended.items() if c.message.senders == ["Controller"])
 SET_INPUT_POS = split_arbitration_id(_CONTRACT.odrive_id(0, "Set_Input_Pos"))[1]
 GET_ENCODER_ESTIMATES = split_arbitration_id(_CONTRACT.odrive_id(0, "Get_Encoder_Estimates"))[1]
 _F32 = struct.Struct("<f")  # Set_Input_Pos's Input_Pos [rev]
@@ -143,7 +144,10 @@ def socket_drops(sock: socket.socket) -> int | None:
 
 def sent_by_controller(msg: can.Message) -> bool:
     """True for a frame only the controller sends: a command of the contract's master messages
-    (or a remote request) to a node other than the sensor board."""
+    (or a remote request) to a node other than the sensor board; in simulated time also its
+    ``ES_End_Of_Period`` and ``ES_Controller_State`` (the plant's ``ES_Sim_Sync`` is the leg's)."""
+    if msg.is_extended_id:
+        return msg.arbitration_id in _CONTROLLER_EXTENDED
     node, cmd = split_arbitration_id(msg.arbitration_id)
     return node != SENSOR_BOARD_NODE_ID and (cmd in CONTROLLER_CMDS or msg.is_remote_frame)
 
@@ -209,6 +213,12 @@ class BusRecorder(threading.Thread):
         self.frames += 1
         arb = msg.arbitration_id
         self.by_id[arb] = self.by_id.get(arb, 0) + 1
+        if msg.is_extended_id:  # simulated time's frames (sent_by_controller's rule, inlined)
+            if arb in _CONTROLLER_EXTENDED:
+                self.to_leg += 1
+            else:
+                self.from_leg += 1
+            return
         node, cmd = split_arbitration_id(arb)
         if node != SENSOR_BOARD_NODE_ID and (cmd in CONTROLLER_CMDS or msg.is_remote_frame):
             self.to_leg += 1

@@ -16,8 +16,14 @@ come from the controller's own records, matched to each trial by the monotonic c
 processes share. ``timing``: the controller's ticks and late ticks (its own count: period above
 ``late_factor`` periods), its period jitter (|period - nominal|), and the command-to-feedback
 latency: on the bus recording, from each Set_Input_Pos to the next Get_Encoder_Estimates from
-the same axis (kernel receive timestamps of the recorder's socket). ``hil``: where it ran,
-frames each way, phases, watchdog trips, process exit codes.
+the same axis (kernel receive timestamps of the recorder's socket); ``floor``: the platform's
+floor measured beside the session (:class:`hil.bench.floor.FloorProbe`: a do-nothing process
+ticking with the controller's pacing code, at the controller's priority), and ``against_floor``:
+the controller's jitter and longest period beside it (:func:`against_floor`). ``hil``: where it
+ran, frames each way, phases, watchdog trips, process exit codes.
+
+This is the wall-clock session (``--clock wall``, the default): timing is what it measures, and
+a loaded host can stall it into a safe stop. ``--clock sim`` is :mod:`hil.session.simsession`.
 
 With fault options (:class:`hil.faults.session.FaultPlan`: rate faults, kill -9 of the controller,
 silence of a node) the firmware-sim process is on a second channel behind the man-in-the-middle
@@ -30,7 +36,6 @@ Where the kernel has no vcan, the whole session runs inside User-Mode Linux (:mo
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import shutil
 import signal
@@ -49,7 +54,7 @@ from controller.daemon.run import phases_seen, read_records
 from hil.analysis.busload import bus_load_from_log
 from hil.analysis.metrics import METRICS_FORMAT
 from hil.profile import Profile, current as current_profile
-from hil.session.outcome import HilError, session_ok
+from hil.session.outcome import HilError
 from hil.analysis.buslog import metadata_path
 from hil.session.recorder import BusRecorder
 from hil.session.scenario import ScenarioClient
@@ -220,6 +225,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     error: str | None = None
     rc_controller = rc_firmware = None
     t_walk = None
+    floor_probe = None
 
     def alive() -> bool:
         return (firmware.poll() is None and (controller is None or controller.poll() is None)
@@ -234,6 +240,12 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
             [*py, "controller", *bus_args, "--config", str(work / "controller.toml"), "--records", str(records_path),
              "--weights", str(work / "weights.npz"), "--ticks", str(work / "controller.ticks")],
             stdout=ctl_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env)
+        # The platform's floor beside the session: a process at the controller's priority ticking
+        # with the controller's pacing code and doing nothing (hil.bench.floor, as bench --hil),
+        # at 100 Hz so that it costs the session little (its wake-up latency is the figure).
+        from hil.bench.floor import FloorProbe
+
+        floor_probe = FloorProbe().start()
         try:  # the recorder and this bookkeeping yield to the two real-time processes
             os.nice(10)
         except OSError:
@@ -249,6 +261,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
             time.sleep(0.2)
         t_walk = time.monotonic() - wall0
         say(f"controller walking after {t_walk:.1f} s (phases {' -> '.join(phases)})")
+
         time.sleep(1.0)  # one second of walking before the first obstacle, as in learn
         rng = np.random.default_rng(config.seed)
         successes = 0
@@ -274,6 +287,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
         error = str(exc)
         say(f"error: {error}")
     finally:
+        floor = floor_probe.stop() if floor_probe is not None else None
         rc_controller, rc_firmware, bye = stop_session(controller, client, firmware, rc_controller, bye)
         if fs is not None:
             fs.stop()
@@ -315,6 +329,9 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
             "firmware": bye.get("pacing"),
             "cpu_s": {"controller": final.get("cpu_s"), "firmware_sim": bye.get("cpu_s"),
                       "recorder_and_harness": _cpu_s()},
+            "clock": "wall",
+            "floor": floor,
+            "against_floor": against_floor(pacing, final.get("max_period_us"), floor),
         },
         "hil": {
             "where": where,
@@ -347,95 +364,20 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     return metrics
 
 
-def _inner_argv(args, out: Path) -> list[str]:
-    argv = [sys.executable, "-m", "hil.cli", "hil", "--trials", str(args.trials), "--seed", str(args.seed),
-            "--out", str(out), "--channel", args.channel, "--obstacle-height-m", str(args.obstacle_height_m),
-            "--range-noise-m", str(args.range_noise_m), "--log-format", args.log_format, "--where", "native"]
-    if args.no_learning:
-        argv.append("--no-learning")
-    if args.quiet:
-        argv.append("--quiet")
-    if args.timeout is not None:
-        argv += ["--timeout", str(args.timeout)]
-    plan = _fault_plan(args)
-    return argv + ([] if plan is None else plan.argv())
+def against_floor(pacing: dict[str, Any], max_period_us: float | None, floor: dict[str, Any] | None
+                  ) -> dict[str, Any]:
+    """The controller's timing beside the platform's floor measured in the same session (a
+    do-nothing process at the controller's rate, :mod:`hil.bench.floor`), each as
+    :func:`hil.bench.socketcan.side_by_side` gives it (``hil``, ``floor``, ``ratio``, ``excess``):
+    how much of the controller's lateness is the platform's and how much its own."""
+    from hil.bench.floor import side_by_side
 
-
-def _fault_plan(args) -> FaultPlan | None:
-    """The session's fault plan from the ``hil`` options (None without any; also None for an
-    argparse namespace from before the fault options existed)."""
-    if not hasattr(args, "faults_to_leg"):
-        return None
-    from hil.faults.session import FaultPlan
-
-    return FaultPlan.from_args(args)
-
-
-def main_hil(args) -> int:
-    """``elegant-stepping hil``: the options are checked first (the trial count, the output folder,
-    the fault plan), then where the session can run (no vcan and no User-Mode Linux: exit 6), and
-    only then is anything started, User-Mode Linux included."""
-    from controller.cli.common import check_output_folder
-    from controller.errors import MissingDependency, UsageError
-    from hil.uml.runner import VcanUnavailable, instruction, native_vcan, run_in_uml, where
-
-    if args.trials < 1:
-        raise UsageError(f"--trials must be at least 1, got {args.trials}")
-    check_output_folder(args.out, "--out")
-    try:
-        plan = _fault_plan(args)
-    except ValueError as exc:  # the fault options contradict each other
-        raise UsageError(str(exc)) from None
-    if plan is not None and plan.leg_channel == args.channel:
-        raise UsageError(f"the leg's channel must differ from the controller's --channel {args.channel}")
-    try:
-        place = where(args.where, args.channel)
-        if plan is not None and place == "native" and not native_vcan(plan.leg_channel):
-            if args.where != "auto" or current_profile().uml:
-                raise VcanUnavailable(f"the fault options need a second channel {plan.leg_channel!r}: "
-                                      f"{instruction(plan.leg_channel, uml_considered=False)}")
-            place = where("uml", args.channel)
-    except VcanUnavailable as exc:
-        raise MissingDependency(str(exc)) from None
-    out = Path(args.out).resolve()
-    if place == "uml" and not current_profile().uml:
-        out.mkdir(parents=True, exist_ok=True)
-        budget = args.timeout if args.timeout is not None else 180.0 + 40.0 * args.trials
-        t0 = time.time()
-        if not args.quiet:
-            print("hil: no vcan on this kernel; running the session inside User-Mode Linux", file=sys.stderr)
-        result = run_in_uml(_inner_argv(args, out), timeout_s=budget + 60.0)
-        metrics_path = out / "metrics.json"
-        if metrics_path.exists():
-            m = json.loads(metrics_path.read_text())
-            if m["hil"].get("started_unix", 0) >= t0:
-                m["hil"]["where"] = "uml"
-                m["hil"]["uml"] = {"boot_to_session_s": m["hil"]["started_unix"] - t0, "wall_s": time.time() - t0,
-                                   "exit_code": result.returncode}
-                write_json_atomic(metrics_path, m, indent=1)
-        return result.returncode
-    m = run_session(trials=args.trials, seed=args.seed, out=out, channel=args.channel,
-                    obstacle_height_m=args.obstacle_height_m, range_noise_m=args.range_noise_m,
-                    learning=not args.no_learning, log_format=args.log_format, timeout_s=args.timeout,
-                    quiet=args.quiet, where=current_profile().name, faults=plan)
-    if plan is not None:
-        from hil.faults.session import fault_problems, fault_summary
-
-        problems = fault_problems(m, args.trials)
-        print(fault_summary(m), file=sys.stderr)
-    else:
-        problems = session_ok(m, args.trials)
-    s, t = m["summary"], m["timing"]
-    jit = t["period_jitter_us"] or {}
-    c2f = t["command_to_feedback_us"]
-    print(f"hil ({m['hil']['where']}, {args.channel}): {m['hil']['trials_completed']}/{args.trials} trials, "
-          f"success {s.get('success_rate', 0) or 0:.0%}; frames {m['hil']['bus']['controller_to_leg']} to the leg, "
-          f"{m['hil']['bus']['leg_to_controller']} from it; ticks {t['ticks']}, late {t['late_ticks']}, "
-          f"skipped {t['skipped_ticks']}; jitter median/p99/max {jit.get('median')}/{jit.get('p99')}/"
-          f"{None if jit.get('max') is None else round(jit['max'])} us; command->feedback median/p99 "
-          f"{None if c2f['median'] is None else round(c2f['median'])}/"
-          f"{None if c2f['p99'] is None else round(c2f['p99'])} us; watchdog trips {m['hil']['watchdog_trips']}; "
-          f"wrote {out}/metrics.json and {Path(m['hil']['bus']['file']).name}", file=sys.stderr)
-    for p in problems:
-        print(f"elegant-stepping hil: {p}", file=sys.stderr)
-    return 1 if problems else 0
+    floor = floor or {}
+    fj, hj = floor.get("period_jitter_us") or {}, pacing.get("period_jitter_us") or {}
+    fmax = floor.get("max_period_s")
+    return {
+        "period_jitter_median_us": side_by_side(hj.get("median"), fj.get("median")),
+        "period_jitter_p99_us": side_by_side(hj.get("p99"), fj.get("p99")),
+        "max_period_us": side_by_side(max_period_us, None if fmax is None else fmax * 1e6),
+        "error": floor.get("error", "no floor measured (the session ended before walking)") if not fj else None,
+    }

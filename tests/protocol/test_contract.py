@@ -331,12 +331,20 @@ def test_a_dbc_message_of_no_known_node_is_refused_naming_it():
 
 # -- simulated time (hil --clock sim) ------------------------------------------------------------
 def test_the_simulated_time_frames_are_extended_ids_of_no_node():
-    from protocol.contract import END_OF_PERIOD_ID, SIM_SYNC_ID
+    from protocol.contract import CONTROLLER_STATE_ID, END_OF_PERIOD_ID, PHASE_CODES, SIM_SYNC_ID, SIM_TIME_IDS
+    from controller.supervisor import Phase
 
     sync, eop = contract.codec("ES_Sim_Sync"), contract.codec("ES_End_Of_Period")
-    assert (sync.frame_id, eop.frame_id) == (SIM_SYNC_ID, END_OF_PERIOD_ID) == (0x1FFFFF00, 0x1FFFFF01)
-    assert sync.message.is_extended_frame and eop.message.is_extended_frame
-    assert contract.extended == {SIM_SYNC_ID: sync, END_OF_PERIOD_ID: eop}
+    state = contract.codec("ES_Controller_State")
+    assert (sync.frame_id, eop.frame_id, state.frame_id) == (SIM_SYNC_ID, END_OF_PERIOD_ID, CONTROLLER_STATE_ID) \
+        == (0x1FFFFF00, 0x1FFFFF01, 0x1FFFFF02)
+    assert sync.message.is_extended_frame and eop.message.is_extended_frame and state.message.is_extended_frame
+    assert contract.extended == {SIM_SYNC_ID: sync, END_OF_PERIOD_ID: eop, CONTROLLER_STATE_ID: state}
+    assert SIM_TIME_IDS == set(contract.extended)
+    # the state's codes: every phase, by the DBC's value table, in PHASE_CODES' order
+    choices = state.message.get_signal_by_name("Phase").choices
+    assert [str(choices[i]).lower() for i in range(len(choices))] == list(PHASE_CODES) == [p.value for p in Phase]
+    assert state.message.senders == ["Controller"] and state.dlc == 1
     assert sync not in contract.odrive.values() and sync not in contract.sensor_board.values()
     assert eop not in contract.odrive.values() and eop not in contract.sensor_board.values()
     assert contract.route(SIM_SYNC_ID) is None and contract.route(END_OF_PERIOD_ID) is None

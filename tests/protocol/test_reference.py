@@ -108,7 +108,7 @@ def test_we_define_no_odrive_message_the_reference_lacks():
     assert all(m.name.startswith("SB_") and m.senders == ["SensorBoard"] for m in standard if m.frame_id >> 5)
     # the simulated-time frames: 29-bit ids, above every 11-bit id, and nothing else extended
     extended = {m.name: m.frame_id for m in ours.messages if m.is_extended_frame}
-    assert extended == {"ES_Sim_Sync": 0x1FFFFF00, "ES_End_Of_Period": 0x1FFFFF01}
+    assert extended == {"ES_Sim_Sync": 0x1FFFFF00, "ES_End_Of_Period": 0x1FFFFF01, "ES_Controller_State": 0x1FFFFF02}
     assert all(0x7FF < i <= 0x1FFFFFFF for i in extended.values())
 
 

@@ -11,7 +11,8 @@ import can
 import pytest
 
 from controller.daemon.simclock import SimClockBus, SimSync, run_period
-from protocol.contract import END_OF_PERIOD_ID, SIM_SYNC_ID
+from controller.supervisor import Phase
+from protocol.contract import CONTROLLER_STATE_ID, END_OF_PERIOD_ID, PHASE_CODES, SIM_SYNC_ID
 
 _n = itertools.count()
 
@@ -111,6 +112,7 @@ def test_sync_and_end_of_period_frames_never_reach_the_controller(buses):
     plant, clock = buses
     other_extended = can.Message(arbitration_id=0x1234567, data=bytes(8), is_extended_id=True)
     plant.send(can.Message(arbitration_id=END_OF_PERIOD_ID, data=bytes(8), is_extended_id=True))  # another controller's
+    plant.send(can.Message(arbitration_id=CONTROLLER_STATE_ID, data=bytes(1), is_extended_id=True))  # its state
     plant.send(can.Message(arbitration_id=SIM_SYNC_ID, data=bytes(4), is_extended_id=True))  # malformed
     plant.send(sync(math.nan))  # not a time
     plant.send(other_extended)
@@ -120,7 +122,8 @@ def test_sync_and_end_of_period_frames_never_reach_the_controller(buses):
     while (m := clock.recv(timeout=0.0)) is not None:
         got.append((m.arbitration_id, m.is_extended_id))
     assert got == [(0x1234567, True), (0x009, False)]  # other traffic passes, for BusIO to count
-    assert clock.stats == {"syncs": 0, "ends": 0, "foreign_end_of_period": 1, "malformed_sync": 2}
+    assert clock.stats == {"syncs": 0, "ends": 0, "states": 0, "stale_syncs": 0, "foreign_end_of_period": 2,
+                           "malformed_sync": 2}
     assert clock.wait_sync(0.0) == SimSync(0, 0.1)
 
 
@@ -135,6 +138,7 @@ class _Loop:
     def __init__(self, bus: can.BusABC) -> None:
         self.bus = bus
         self.ticks: list[tuple[float, list[int]]] = []
+        self.phase = Phase.WAIT_NODES
 
     def tick(self, now_s: float) -> None:
         self.ticks.append((now_s, drain(self.bus)))
@@ -151,5 +155,53 @@ def test_run_period_ticks_once_per_sync_with_its_time(buses):
     assert run_period(loop, clock, 0.0) == SimSync(0, 0.002)
     assert run_period(loop, clock, 0.0) == SimSync(1, 0.004)
     assert loop.ticks == [(0.002, [0x009]), (0.004, [0x029])]
-    ends = [struct.unpack("<d", m.data)[0] for m in iter(lambda: plant.recv(timeout=0.0), None)]
+    sent = list(iter(lambda: plant.recv(timeout=0.0), None))
+    ends = [struct.unpack("<d", m.data)[0] for m in sent if m.arbitration_id == END_OF_PERIOD_ID]
     assert ends == [0.002, 0.004]
+    # the phase went with the first answer only (it did not change)
+    states = [m for m in sent if m.arbitration_id == CONTROLLER_STATE_ID]
+    assert [bytes(m.data) for m in states] == [bytes([PHASE_CODES.index("wait_nodes")])]
+    assert sent[0] is not None and sent[0].arbitration_id == CONTROLLER_STATE_ID  # before its end of period
+
+
+def test_the_opening_sync_is_answered_without_a_tick_and_its_repeats_are_stale(buses):
+    plant, clock = buses
+    loop = _Loop(clock)
+    for _ in range(3):  # the plant repeats the opening sync until it is answered
+        plant.send(sync(0.0))
+    assert run_period(loop, clock, 0.0) == SimSync(0, 0.0)
+    assert loop.ticks == []  # no time has passed: no tick
+    plant.send(frame(0x009))
+    plant.send(sync(0.002))
+    assert run_period(loop, clock, 0.0) == SimSync(1, 0.002)
+    assert loop.ticks == [(0.002, [0x009])]
+    assert clock.stats["stale_syncs"] == 2  # the two repeats, dropped
+
+
+def test_a_sync_for_a_time_already_lived_is_never_ticked_on(buses):
+    plant, clock = buses
+    loop = _Loop(clock)
+    for t in (0.002, 0.004, 0.002, 0.004, 0.006):
+        plant.send(sync(t))
+    got = [run_period(loop, clock, 0.0) for _ in range(4)]
+    assert [g.t_s if g else None for g in got] == [0.002, 0.004, 0.006, None]
+    assert [t for t, _ in loop.ticks] == [0.002, 0.004, 0.006]
+    assert clock.stats["stale_syncs"] == 2
+
+
+def test_the_controller_state_goes_out_when_the_phase_changes(buses):
+    plant, clock = buses
+    loop = _Loop(clock)
+    phases = [Phase.WAIT_NODES, Phase.WAIT_NODES, Phase.INACTIVE, Phase.WALK, Phase.WALK, Phase.FAULT]
+    for i, phase in enumerate(phases, 1):
+        loop.phase = phase
+        plant.send(sync(i * 0.002))
+        assert run_period(loop, clock, 0.0) is not None
+    sent = list(iter(lambda: plant.recv(timeout=0.0), None))
+    codes = [m.data[0] for m in sent if m.arbitration_id == CONTROLLER_STATE_ID]
+    assert [PHASE_CODES[c] for c in codes] == ["wait_nodes", "inactive", "walk", "fault"]
+    assert clock.stats["states"] == 4 and clock.stats["ends"] == 6
+    # each state just before the end of period of its tick
+    for i, m in enumerate(sent):
+        if m.arbitration_id == CONTROLLER_STATE_ID:
+            assert sent[i + 1].arbitration_id == END_OF_PERIOD_ID

@@ -15,7 +15,7 @@ from controller.supervisor import Phase
 from hil.faults.model import FaultSpec
 from hil.lockstep.harness import Lockstep, LockstepConfig
 from hil.lockstep.synced import SyncedLockstep
-from protocol.contract import END_OF_PERIOD_ID, SIM_SYNC_ID
+from protocol.contract import CONTROLLER_STATE_ID, END_OF_PERIOD_ID, SIM_SYNC_ID
 
 
 def _learn(harness: type) -> tuple[list[str], dict]:
@@ -29,6 +29,7 @@ def _learn(harness: type) -> tuple[list[str], dict]:
         if isinstance(ls, SyncedLockstep):
             facts["plant_bus"] = dict(ls.plant_bus.stats)
             facts["sim_clock"] = dict(ls.sim_clock.stats)
+            facts["plant_phase"] = ls.plant_bus.controller_phase
     finally:
         run.close()
     return [json.dumps(t, sort_keys=True) for t in trials], facts
@@ -47,8 +48,14 @@ def test_learning_through_the_sync_protocol_gives_the_in_process_records():
     # every tick came from a sync and was answered
     n = facts["ticks"]
     assert n > 9000
-    assert facts["sim_clock"] == {"syncs": n, "ends": n, "foreign_end_of_period": 0, "malformed_sync": 0}
-    assert facts["plant_bus"] == {"syncs": n, "ends": n, "alone": 0, "stale_ends": 0, "hidden": 0}
+    # one controller state per phase the run went through (wait_nodes ... walk), each heard by the plant
+    states = facts["sim_clock"]["states"]
+    assert 3 <= states <= 6
+    assert facts["sim_clock"] == {"syncs": n, "ends": n, "states": states, "stale_syncs": 0,
+                                  "foreign_end_of_period": 0, "malformed_sync": 0}
+    assert facts["plant_bus"] == {"syncs": n, "ends": n, "alone": 0, "stale_ends": 0, "states": states, "hidden": 0,
+                                  "silenced": 0}
+    assert facts["plant_phase"] == "walk"
 
 
 def test_a_walk_through_the_sync_protocol_gives_the_in_process_metrics(monkeypatch):
@@ -86,7 +93,8 @@ def test_the_sync_follows_the_period_s_frames_and_the_end_of_period_the_controll
         assert s < e and frames[e].data == frames[s].data  # the end echoes the sync's time, bit for bit
         # between a sync and its end: only the controller's frames (to the ODrive nodes 0, 1 and
         # the sensor board 16), no plant frame
-        between = frames[s + 1:e]
+        # (and the controller's state, when its phase changed)
+        between = [m for m in frames[s + 1:e] if not (m.is_extended_id and m.arbitration_id == CONTROLLER_STATE_ID)]
         assert all(not m.is_extended_id and m.arbitration_id >> 5 in (0, 1, 16) for m in between)
     assert any(e - s > 1 for s, e in zip(syncs, ends))  # the controller did send in its periods
 

@@ -240,3 +240,15 @@ def test_the_recorder_counts_the_lost_frames_from_the_next_frame_where_the_kerne
     rec.start()
     rec.stop()
     assert read_metadata(log)["frames_lost"] == 300 - read
+
+
+def test_the_simulated_time_frames_are_counted_on_the_side_that_sends_them():
+    from hil.session.recorder import sent_by_controller
+    from protocol.contract import CONTROLLER_STATE_ID, END_OF_PERIOD_ID, SIM_SYNC_ID
+
+    def ext(arb: int) -> can.Message:
+        return can.Message(arbitration_id=arb, is_extended_id=True, data=bytes(8))
+
+    assert not sent_by_controller(ext(SIM_SYNC_ID))  # the plant's
+    assert sent_by_controller(ext(END_OF_PERIOD_ID)) and sent_by_controller(ext(CONTROLLER_STATE_ID))
+    assert not sent_by_controller(ext(0x1234567))  # an unknown extended frame is nobody's command
