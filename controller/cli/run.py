@@ -80,10 +80,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write every tick's clock and CPG burst length here (float64 pairs; for figures)")
     p.add_argument("--clock", choices=("wall", "sim"), default="wall",
                    help="wall: tick at the fixed rate on this machine's clock (a real leg; the default); sim: tick "
-                        "once per ES_Sim_Sync frame of a simulated plant, on its simulated time (hil --clock sim)")
+                        "once per ES_Sim_Sync frame of a simulated plant, on its simulated time (hil --clock sim; "
+                        "refused on a bus that is not vcan or virtual)")
 
 
 STOPPED_AS_ASKED = ("SIGTERM", "SIGINT", "SIGHUP", "SIGUSR1", "event")
+
+
+def simulated_bus(bus_kw: dict) -> bool:
+    """A bus only a simulated plant can be on: python-can's ``virtual``, or a SocketCAN ``vcan``
+    channel. ``--clock sim`` is refused on any other (a real leg runs on the wall clock)."""
+    return bus_kw.get("interface") == "virtual" or str(bus_kw.get("channel") or "").startswith("vcan")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,6 +103,12 @@ def run(args: argparse.Namespace) -> int:
         d = daemon_settings(args.config, args.interface, args.channel, args.bitrate, args.weights, args.save_every_s)
     except ConfigError as exc:
         raise exc.reported() from None  # exit 3: every problem on its own line, then one line
+    if args.clock == "sim" and not simulated_bus(d.bus_kw):
+        from controller.errors import UsageError
+
+        raise UsageError(f"--clock sim ticks on a simulated plant's sync frames; the bus {d.bus_kw.get('interface')}:"
+                         f"{d.bus_kw.get('channel')} is not a virtual one (vcan*, or python-can's virtual): a real leg "
+                         f"runs on the wall clock")
     service = getattr(d.config, "service", None)
     if args.socket is not None:
         socket_path = None if args.socket.strip().lower() in ("", "none") else args.socket

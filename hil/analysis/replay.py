@@ -33,6 +33,13 @@ the count, or one not made on SocketCAN) both are null and the summary says so.
 
 Every other file replay reads (``--config``, ``--records``, ``controller.ticks``) is checked for
 its structure; a problem is one line naming it.
+
+**Simulated time.** A log of a ``hil --clock sim`` session holds the plant's ``ES_Sim_Sync`` frames,
+and there the ticks need no recovering: the live controller ticked once per sync (the opening sync
+at 0.0 and syncs for a time already lived aside), with the sync's time as its clock, on exactly the
+frames recorded before that sync since the previous one (a vcan delivers frames to every socket in
+one order). Replay does the same (``tick_source`` "sync frames"), so with nothing lost it is the
+live run, tick for tick; the controller's own sync-protocol frames are never fed to it.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import struct
 import sys
 from collections import deque
 from pathlib import Path
@@ -53,9 +61,10 @@ from controller.loop import ControlLoop
 from hil.analysis.buslog import LogReading, frames_lost, read_frames, read_metadata
 from hil.session.recorder import SET_INPUT_POS, sent_by_controller
 from protocol import SENSOR_BOARD_NODE_ID, split_arbitration_id
-from protocol.contract import DBC_PATH, BusContract
+from protocol.contract import DBC_PATH, SIM_SYNC_ID, BusContract
 
 PRE_START_S = 0.5
+_F64 = struct.Struct("<d")
 
 
 class ReplayBus:
@@ -155,6 +164,8 @@ def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, ti
         if split_arbitration_id(m.arbitration_id) == (hip_id, SET_INPUT_POS):
             new_tick = True
     offset = 0.0
+    if any(_sync_time(m) is not None for m in frames):
+        return _replay_on_syncs(log, loop, bus, frames)
     if tick_times is not None and clock_offset_s is not None:
         ticks, offset = list(tick_times), clock_offset_s
         inbound = [m for m in frames if not _is_controller(m)]
@@ -179,15 +190,8 @@ def replay(log: str | Path, config: ControllerConfig = ControllerConfig(), *, ti
             bus.inbox.append(inbound[j])
             j += 1
         loop.tick(t)
-    steps = [{"index": s.index, "onset_s": s.onset_s, "gated_range_m": s.gated_range_m, "cell": s.cell,
-              "modulation_s": s.modulation_s, "burst_s": None if math.isnan(s.burst_s) else s.burst_s,
-              "amplitude": s.amplitude} for s in loop.stats.steps]
-    return {"log": str(log), "frames": len(frames), "ticks": n_ticks,
-            "tick_source": "live ticks and frame counts" if ticks_done else ("live ticks" if offset else "log"), "phase": loop.phase.value,
-            "steps": steps, "reflexes": len(loop.stats.reflexes),
-            "sent_set_input_pos": sum(1 for m in bus.sent if split_arbitration_id(m.arbitration_id)[1] == SET_INPUT_POS),
-            "logged_set_input_pos": sum(1 for m in frames if _is_controller(m)
-                                        and split_arbitration_id(m.arbitration_id)[1] == SET_INPUT_POS)}
+    return _result(log, frames, n_ticks,
+                   "live ticks and frame counts" if ticks_done else ("live ticks" if offset else "log"), loop, bus)
 
 
 def compare(replayed: list[dict[str, Any]], live: list[dict[str, Any]]) -> dict[str, Any]:
@@ -244,6 +248,44 @@ def _live_steps(path: Path, option: str) -> list[dict[str, Any]]:
     return steps
 
 
+def _sync_time(msg: can.Message) -> float | None:
+    """The time an ``ES_Sim_Sync`` frame carries, or None for any other frame (or a malformed sync)."""
+    if not (msg.is_extended_id and msg.arbitration_id == SIM_SYNC_ID) or msg.is_remote_frame or len(msg.data) != 8:
+        return None
+    t = _F64.unpack(bytes(msg.data))[0]
+    return t if math.isfinite(t) else None
+
+
+def _replay_on_syncs(log: str | Path, loop: ControlLoop, bus: ReplayBus, frames: list[can.Message]) -> dict[str, Any]:
+    """Replay a simulated-time log: one tick per sync, on the frames before it (module doc)."""
+    last = -math.inf
+    ticks = 0
+    for m in frames:
+        if m.is_extended_id:
+            t = _sync_time(m)
+            if t is None or t <= last:
+                continue  # the controller's end of period or state, another extended frame, a stale sync
+            last = t
+            if t > 0.0:  # the opening sync: answered without a tick
+                loop.tick(t)
+                ticks += 1
+        elif not _is_controller(m):
+            bus.inbox.append(m)
+    return _result(log, frames, ticks, "sync frames", loop, bus)
+
+
+def _result(log: str | Path, frames: list[can.Message], n_ticks: int, source: str, loop: ControlLoop,
+            bus: ReplayBus) -> dict[str, Any]:
+    steps = [{"index": s.index, "onset_s": s.onset_s, "gated_range_m": s.gated_range_m, "cell": s.cell,
+              "modulation_s": s.modulation_s, "burst_s": None if math.isnan(s.burst_s) else s.burst_s,
+              "amplitude": s.amplitude} for s in loop.stats.steps]
+    return {"log": str(log), "frames": len(frames), "ticks": n_ticks, "tick_source": source,
+            "phase": loop.phase.value, "steps": steps, "reflexes": len(loop.stats.reflexes),
+            "sent_set_input_pos": sum(1 for m in bus.sent if split_arbitration_id(m.arbitration_id)[1] == SET_INPUT_POS),
+            "logged_set_input_pos": sum(1 for m in frames if _is_controller(m) and not m.is_extended_id
+                                        and split_arbitration_id(m.arbitration_id)[1] == SET_INPUT_POS)}
+
+
 def _live_ticks(ticks_path: Path, rec_path: Path) -> tuple[list[float], list[int], float] | None:
     """The live loop's ticks (its clock at each tick, frames read in it) and the clock offset,
     from ``controller.ticks`` and the records' clock record; None where the records have none.
@@ -273,6 +315,12 @@ def _live_ticks(ticks_path: Path, rec_path: Path) -> tuple[list[float], list[int
     if not all(math.isfinite(n) and n == int(n) for n in counts):
         raise InputError(f"{ticks_path}: a frame count that is not a whole number: not a controller.ticks file")
     return pairs[0::2], [int(n) for n in counts], float(offset)
+
+
+def _clock_lines(rec_path: Path) -> list[dict[str, Any]]:
+    from controller.daemon.run import read_records
+
+    return read_records(rec_path).get("clock") or []
 
 
 def _frames(n: int) -> str:
@@ -334,7 +382,9 @@ def main_replay(args) -> int:
     rec_path = Path(args.records) if args.records else log.parent / "controller.jsonl"
     live = _live_steps(rec_path, option) if rec_path.exists() else None
     ticks_path = log.parent / "controller.ticks"
-    ticks = _live_ticks(ticks_path, rec_path) if ticks_path.exists() and rec_path.exists() else None
+    sim = rec_path.exists() and any(c.get("clock") == "sim" for c in _clock_lines(rec_path))
+    # in simulated time the ticks are the log's sync frames (replay finds them there)
+    ticks = _live_ticks(ticks_path, rec_path) if ticks_path.exists() and rec_path.exists() and not sim else None
     tick_times, tick_counts, offset = ticks if ticks is not None else (None, None, None)
     result = replay(log, config, tick_times=tick_times, tick_counts=tick_counts, clock_offset_s=offset,
                     drivers_watchdog_s=drivers_watchdog_s, frames=frames)

@@ -617,7 +617,7 @@ def _sim_row(row: dict[str, Any], m: dict[str, Any], kind: str, done: subprocess
         "stopped_at_trial": f.get("at_trial") if event else None,
         "fault_cause": h.get("fault_cause"),
         "frames_silenced": f.get("frames_silenced") if event else None,
-        "mitm": None if event else {k: (f.get("mitm") or {}).get(k) for k in ("to_leg", "from_leg")},
+        "mitm": None if event else {k: _faulted_counts((f.get("mitm") or {}).get(k)) for k in ("to_leg", "from_leg")},
         "axes_at_end": h.get("axes_at_end"),
         "wall_s": wall_s,
         "details": str(path),
@@ -625,6 +625,17 @@ def _sim_row(row: dict[str, Any], m: dict[str, Any], kind: str, done: subprocess
     if done.returncode != 0:
         row["error"] = f"hil exit {done.returncode}: {done.stderr.strip().splitlines()[-1:] or ''}"
     return row
+
+
+def _faulted_counts(c: dict[str, Any] | None) -> dict[str, Any] | None:
+    """One direction's mitm counts without the simulated-time frames it passed untouched: how
+    often the plant repeated its opening sync before the controller answered depends on when the
+    controller process started (wall time); every other frame is the run's."""
+    if not c:
+        return None
+    sim = c.get("sim_frames", 0)
+    return {"frames": c["frames_in"] - sim, "forwarded": c["forwarded"] - sim,
+            **{k: c.get(k) for k in (*FAULT_KINDS, "silenced", "send_errors")}}
 
 
 def hil_rows(out: str | Path, seed: int = 0, trials: int = 10) -> list[dict[str, Any]]:

@@ -1,12 +1,17 @@
 """Simulated time through the sync protocol, in one process: the same run as the in-process
-lockstep, frame for frame (learning records, a walk's metrics, faults, a killed controller)."""
+lockstep, frame for frame (learning records, a walk's metrics, faults, a killed controller); and
+the plant's half across processes (:class:`SimTimePlant`), with the controller in a thread on its
+own end of the bus: the same run, the controller's phase heard, a dead controller declared gone."""
 
 from __future__ import annotations
 
 import json
 import math
 import struct
+import threading
+import uuid
 
+import can
 import pytest
 
 import hil.experiments.learn as learn
@@ -14,7 +19,8 @@ import hil.experiments.walk as walk
 from controller.supervisor import Phase
 from hil.faults.model import FaultSpec
 from hil.lockstep.harness import Lockstep, LockstepConfig
-from hil.lockstep.synced import SyncedLockstep
+from controller.daemon.simclock import SimClockBus, run_period
+from hil.lockstep.synced import SimTimePlant, SyncedLockstep
 from protocol.contract import CONTROLLER_STATE_ID, END_OF_PERIOD_ID, SIM_SYNC_ID
 
 
@@ -172,3 +178,101 @@ def test_the_plant_waits_for_the_end_of_its_own_period_and_keeps_the_frames_befo
         plant.shutdown()
         plant.inner.shutdown()
         ctl.shutdown()
+
+
+# -- the plant's half across processes (hil --clock sim): SimTimePlant, here with the controller in a thread
+def _controller_thread(channel: str, config, stop: threading.Event, ticks: list):
+    """The controller's side as the daemon runs it in simulated time: a ControlLoop on its own
+    bus through a SimClockBus, one run_period after another until ``stop``."""
+    from controller.loop import ControlLoop
+
+    clock = SimClockBus(can.Bus(interface="virtual", channel=channel))
+    loop = ControlLoop(config, clock)
+    ticks.append(loop)
+
+    def body():
+        try:
+            while not stop.is_set():
+                run_period(loop, clock, 0.05)
+        finally:
+            clock.shutdown()
+
+    t = threading.Thread(target=body, daemon=True)
+    t.start()
+    return t
+
+
+def test_a_plant_and_a_controller_on_separate_ends_give_the_lockstep_run():
+    cfg = LockstepConfig(seed=6)
+    channel = f"simtime-{uuid.uuid4().hex}"
+    plant_bus = can.Bus(interface="virtual", channel=channel)
+    stop, holder = threading.Event(), []
+    worker = _controller_thread(channel, cfg.controller, stop, holder)
+    try:
+        with SimTimePlant(cfg, bus=plant_bus, grace_s=5.0, open_timeout_s=10.0) as plant:
+            while plant.t_s < 4.0:
+                plant.step()
+            phase_seen, gone = plant.loop.phase, plant.gone
+            stats = dict(plant.plant_bus.stats)
+        stop.set()
+        worker.join(5.0)
+    finally:
+        stop.set()
+        plant_bus.shutdown()
+    remote = holder[0]
+    with Lockstep(cfg) as ls:
+        _run(ls, 4.0)
+        want = [(s.onset_s, s.cell, s.burst_s) for s in ls.loop.stats.steps]
+        want_ticks, want_phase = ls.loop.stats.ticks, ls.loop.phase
+    assert [(s.onset_s, s.cell, s.burst_s) for s in remote.stats.steps] == want and want
+    assert remote.stats.ticks == want_ticks  # no tick at the opening sync
+    assert phase_seen is want_phase is Phase.WALK  # the plant learned the phase from the state frames
+    assert not gone and stats["alone"] == 0 and stats["ends"] == want_ticks + 1
+
+
+def test_the_opening_sync_is_repeated_until_answered_and_a_silent_end_gives_up():
+    from hil.lockstep.synced import PlantSyncBus
+
+    channel = f"open-{uuid.uuid4().hex}"
+    inner, other = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
+    try:
+        bus = PlantSyncBus(inner)
+        assert bus.open_time(0.0, resend_s=0.01, timeout_s=0.05) is False  # nobody there
+        sent = [m for m in iter(lambda: other.recv(timeout=0.0), None)]
+        assert len(sent) >= 2 and all(m.arbitration_id == SIM_SYNC_ID and m.data == bytes(8) for m in sent)
+        assert bus.stats["alone"] == 0  # waiting to open is not stepping alone
+        other.send(can.Message(arbitration_id=END_OF_PERIOD_ID, is_extended_id=True, data=bytes(8)))
+        assert bus.open_time(0.0, resend_s=0.5, timeout_s=5.0) is True
+        # a silenced node's frames are never sent; the others' are
+        bus.silenced_node = 1
+        bus.send(can.Message(arbitration_id=(1 << 5) | 9, data=bytes(8), is_extended_id=False))
+        bus.send(can.Message(arbitration_id=(0 << 5) | 9, data=bytes(8), is_extended_id=False))
+        got = [m.arbitration_id for m in iter(lambda: other.recv(timeout=0.0), None) if not m.is_extended_id]
+        assert got == [9] and bus.stats["silenced"] == 1
+    finally:
+        inner.shutdown()
+        other.shutdown()
+
+
+def test_a_plant_whose_controller_stops_answering_declares_it_gone_and_steps_on():
+    cfg = LockstepConfig(seed=1)
+    channel = f"gone-{uuid.uuid4().hex}"
+    plant_bus = can.Bus(interface="virtual", channel=channel)
+    stop, holder = threading.Event(), []
+    worker = _controller_thread(channel, cfg.controller, stop, holder)
+    try:
+        with SimTimePlant(cfg, bus=plant_bus, grace_s=0.3, open_timeout_s=10.0) as plant:
+            while plant.loop.phase is not Phase.WALK:
+                assert plant.t_s < 10.0
+                plant.step()
+            stop.set()  # the controller dies (no goodbye frames)
+            worker.join(5.0)
+            t_dead = plant.t_s
+            while plant.t_s < t_dead + 1.0:
+                plant.step()
+            assert plant.gone and plant.plant_bus.stats["alone"] > 100
+            # the drivers' watchdogs acted on simulated time: every axis IDLE
+            assert all(a.state.name == "IDLE" for a in plant.leg.axes.values())
+    finally:
+        stop.set()
+        plant_bus.shutdown()
