@@ -61,7 +61,31 @@ class LockstepConfig:
             )
 
 
-class Lockstep:
+class LegHarness:
+    """What every harness around a simulated leg shares: ``leg``, its ``plant`` and clock
+    ``t_s``, and closing as a context manager (``close`` is the harness's own)."""
+
+    leg: SimulatedLeg
+
+    @property
+    def plant(self):
+        return self.leg.plant
+
+    @property
+    def t_s(self) -> float:
+        return self.leg.t_s
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class Lockstep(LegHarness):
     def __init__(self, config: LockstepConfig = LockstepConfig(), *, premotor: Premotor | None = None,
                  gui: bool = False) -> None:
         self.config = config
@@ -76,14 +100,6 @@ class Lockstep:
         self._cut: CutBus | None = None
         self.faulty: FaultyBus | None = None
         self.controller_alive = True
-
-    @property
-    def plant(self):
-        return self.leg.plant
-
-    @property
-    def t_s(self) -> float:
-        return self.leg.t_s
 
     def step(self) -> bool:
         """One physics step, and a controller tick when one is due. True if the controller ticked."""
@@ -144,9 +160,3 @@ class Lockstep:
             self._cut.shutdown()
         self.controller_bus.shutdown()
         self.firmware_bus.shutdown()
-
-    def __enter__(self) -> "Lockstep":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

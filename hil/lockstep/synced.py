@@ -41,7 +41,7 @@ import can
 
 from controller.daemon.simclock import SimClockBus, run_period
 from controller.stepping.premotor import Premotor
-from hil.lockstep.harness import Lockstep, LockstepConfig
+from hil.lockstep.harness import LegHarness, Lockstep, LockstepConfig
 from controller.supervisor import Phase
 from protocol import BusContract
 from protocol.contract import CONTROLLER_STATE_ID, END_OF_PERIOD_ID, PHASE_CODES, SIM_SYNC_ID, SIM_TIME_IDS
@@ -243,7 +243,7 @@ class RemoteLoop:
         return Phase.WAIT_NODES if code is None else Phase(code)
 
 
-class SimTimePlant:
+class SimTimePlant(LegHarness):
     """The plant's half of :class:`SyncedLockstep`, with the controller in another process on
     ``bus`` (SocketCAN: ``hil --clock sim``). The interface an experiment uses of
     :class:`~hil.lockstep.harness.Lockstep`: ``config``, ``leg``, ``plant``, ``t_s``, ``step()``,
@@ -283,14 +283,6 @@ class SimTimePlant:
             self.leg.close()
             raise RuntimeError(f"no controller answered the opening sync within {open_timeout_s:g} s")
 
-    @property
-    def plant(self):
-        return self.leg.plant
-
-    @property
-    def t_s(self) -> float:
-        return self.leg.t_s
-
     def silence(self, node_id: int) -> None:
         """From now on the node's frames are never sent (its transmitter died; it still hears the
         controller): a fault on simulated time, on the plant's side of the bus."""
@@ -323,9 +315,3 @@ class SimTimePlant:
     def close(self) -> None:
         self.leg.close()
         self.plant_bus.shutdown()
-
-    def __enter__(self) -> "SimTimePlant":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -133,6 +133,27 @@ def assemble_trials(truths: list[dict[str, Any]], records: dict[str, list[dict[s
     return trials
 
 
+def start_recorder(out: Path, work: Path, channel: str, log_format: str, audit_commands: bool
+                   ) -> tuple[BusRecorder, Path]:
+    """Start recording ``channel`` to ``work/bus.blf`` (or ``bus.log``), an older session's logs
+    and their metadata in ``out`` removed first; returns (the recorder, the log's path)."""
+    log_path = work / ("bus.blf" if log_format == "blf" else "bus.log")
+    for stale in ("bus.blf", "bus.log"):
+        (out / stale).unlink(missing_ok=True)
+        metadata_path(out / stale).unlink(missing_ok=True)
+    recorder = BusRecorder(channel, log_path, audit_commands=audit_commands)
+    recorder.start()
+    return recorder, log_path
+
+
+def copy_out(work: Path, out: Path) -> None:
+    """Move a session's files from its work folder (the profile's, when it is not ``out``) to ``out``."""
+    if work != out:
+        for f in work.iterdir():
+            shutil.copy2(f, out / f.name)
+        shutil.rmtree(work, ignore_errors=True)
+
+
 def session_controller_config(config: LearnConfig, profile: Profile | None = None) -> ControllerConfig:
     """The controller configuration of a session on this platform (``profile``, default
     :func:`hil.profile.current`): the learning run's, as :meth:`hil.profile.Profile.controller_config`
@@ -188,12 +209,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
         if not quiet:
             print(f"hil: {text}", file=sys.stderr, flush=True)
 
-    log_path = work / ("bus.blf" if log_format == "blf" else "bus.log")
-    for stale in ("bus.blf", "bus.log"):
-        (out / stale).unlink(missing_ok=True)
-        metadata_path(out / stale).unlink(missing_ok=True)
-    recorder = BusRecorder(channel, log_path, audit_commands=faults is not None)
-    recorder.start()
+    recorder, log_path = start_recorder(out, work, channel, log_format, audit_commands=faults is not None)
     py = [sys.executable, "-m", "hil.cli"]
     bus_args = ["--interface", "socketcan", "--channel", channel]
     addr = f"@elegant-stepping-{os.getpid()}-{uuid.uuid4().hex[:8]}"
@@ -295,11 +311,8 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
         fw_log.close()
         ctl_log.close()
 
-    if work != out:
-        for f in work.iterdir():
-            shutil.copy2(f, out / f.name)
-        shutil.rmtree(work, ignore_errors=True)
-        records_path = out / records_path.name
+    copy_out(work, out)
+    records_path = out / records_path.name
     records = read_records(records_path) if records_path.exists() else {}
     final = (records.get("final") or [{}])[-1]
     phases = [r["phase"] for r in records.get("phase", [])]

@@ -34,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -47,12 +46,10 @@ import numpy as np
 from controller.atomic import write_json_atomic
 from controller.daemon.run import read_records
 from controller.errors import stamp
-from hil.analysis.buslog import metadata_path
 from hil.analysis.metrics import METRICS_FORMAT
 from hil.profile import current as current_profile
 from hil.session.outcome import HilError
-from hil.session.recorder import BusRecorder
-from hil.session.run import session_envs, stop_session
+from hil.session.run import copy_out, session_envs, start_recorder, stop_session
 from hil.session.scenario import ScenarioClient
 
 if TYPE_CHECKING:
@@ -151,13 +148,8 @@ def run_sim_session(*, trials: int, seed: int, out: str | Path, channel: str = "
         if not quiet:
             print(f"hil: {text}", file=sys.stderr, flush=True)
 
-    log_path = work / ("bus.blf" if log_format == "blf" else "bus.log")
-    for stale in ("bus.blf", "bus.log"):
-        (out / stale).unlink(missing_ok=True)
-        metadata_path(out / stale).unlink(missing_ok=True)
     rate = faults is not None and faults.kind == "rate"
-    recorder = BusRecorder(channel, log_path, audit_commands=faults is not None)
-    recorder.start()
+    recorder, log_path = start_recorder(out, work, channel, log_format, audit_commands=faults is not None)
     py = [sys.executable, "-m", "hil.cli"]
     addr = f"@elegant-stepping-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     env, fw_env = session_envs()
@@ -248,11 +240,8 @@ def run_sim_session(*, trials: int, seed: int, out: str | Path, channel: str = "
         fw_log.close()
         ctl_log.close()
 
-    if work != out:
-        for f in work.iterdir():
-            shutil.copy2(f, out / f.name)
-        shutil.rmtree(work, ignore_errors=True)
-        records_path = out / records_path.name
+    copy_out(work, out)
+    records_path = out / records_path.name
     records = read_records(records_path) if records_path.exists() else {}
     final = (records.get("final") or [{}])[-1]
     bursts = read_bursts(records_path.with_name("controller.bursts"))
