@@ -1,9 +1,18 @@
 """``elegant-stepping bench``: performance figures, each beside its reference, taken in one run.
 
 Figures (keys of the JSON):
-  lockstep_rtf        real-time factor of the whole stack in lockstep (500 Hz control, 1 kHz physics)
-  bare_physics_rtf    the same rig stepped by PyBullet alone, in the same run
-  lockstep_vs_bare    lockstep_rtf / bare_physics_rtf
+  lockstep_rtf        real-time factor of the whole stack in lockstep (500 Hz control, 1 kHz physics),
+                      walking with no obstacle
+  stack_us_per_step   process CPU per physics step of a learning run through the whole stack
+                      (:mod:`hil.bench.physics_floor`: bring-up, walking, trials to ``seconds``)
+  floor_us_per_step   the physics floor of that run: its recorded joint torques and obstacle events
+                      replayed into a fresh PyBullet world alone (torques, ``stepSimulation``, joint
+                      states), checked to reproduce the run's joint states bit for bit
+  floor_queries_us_per_step
+                      the floor plus the PyBullet queries the stack made, at the steps it made them
+                      (rail, contacts, range ray and profile beams, the experiment's ground truth)
+  stack_vs_floor      median over the interleaved rounds of stack / floor (each round: the stack,
+  stack_vs_floor_queries  then both replays); ``detail.physics_floor.pairs`` has every round
   tick_cost_us        median and p99 of one controller tick (drain, supervise, CPG, IK, send)
   codec_us            encode and decode of one frame (compiled struct codec), beside cantools's
   bus_load            fraction of a 1 Mbit/s bus used at the default rates while walking, from
@@ -16,7 +25,9 @@ Figures (keys of the JSON):
                       figure for a bare loop / bare echo doing no work in the same session (the
                       platform's floor), with ratios; where it ran and the UML boot time. Without
                       ``--hil``: only whether it could run.
-No figure here is asserted in a test: these machines are shared and noisy; compare ratios.
+No figure here is asserted in a test: these machines are shared and noisy; compare ratios. No figure
+compares the stack with a different motion (the bare collapsed leg of the former ``bare_physics_rtf``
+cost more a step than walking, and is gone): the floor is the same motion's physics.
 
 The JSON carries the stamp ``format: "bench"``, ``format_version`` :data:`BENCH_VERSION` and
 ``project_version`` first (:func:`controller.errors.stamp`).
@@ -33,7 +44,7 @@ import can
 
 from controller.errors import stamp
 from controller.supervisor import Phase
-from firmware_sim.plant import RigPlant
+from hil.bench.physics_floor import DEFAULT_PAIRS, measure
 from hil.lockstep.harness import Lockstep, LockstepConfig
 from protocol import BusContract, frame_bits
 
@@ -69,17 +80,9 @@ def bench_lockstep(seconds: float, seed: int = 0) -> dict[str, Any]:
     return {"rtf": sim_s / wall, "sim_s": sim_s, "wall_s": wall, "walking": walked, "tick_cost_us": _quantiles_us(tick_s)}
 
 
-def bench_bare_physics(seconds: float) -> dict[str, Any]:
-    plant = RigPlant()
-    try:
-        n = int(seconds * plant.config.physics_hz)
-        t0 = time.perf_counter()
-        for _ in range(n):
-            plant.step()
-        wall = time.perf_counter() - t0
-        return {"rtf": plant.t_s / wall, "sim_s": plant.t_s, "wall_s": wall}
-    finally:
-        plant.close()
+def bench_physics_floor(seconds: float, seed: int = 0, pairs: int = DEFAULT_PAIRS) -> dict[str, Any]:
+    """The stack beside the physics floor of the same run (:func:`hil.bench.physics_floor.measure`)."""
+    return measure(seconds, seed, pairs)
 
 
 def bench_codec(n: int = 20000) -> dict[str, float]:
@@ -148,25 +151,25 @@ def bench_learning(trials: int, seed: int = 0) -> dict[str, Any]:
 
 
 def run_bench(seconds: float = 10.0, seed: int = 0, learn_trials: int = 10,
-              hil_seconds: float | None = None) -> dict[str, Any]:
-    """All figures; ``hil_seconds``: also the HIL figures (that many seconds of walking)."""
+              hil_seconds: float | None = None, floor_pairs: int = DEFAULT_PAIRS) -> dict[str, Any]:
+    """All figures; ``hil_seconds``: also the HIL figures (that many seconds of walking);
+    ``floor_pairs``: interleaved rounds of the stack against its physics floor (at least 3)."""
     from hil.bench.socketcan import hil_availability, run_hil_bench
 
-    bare = bench_bare_physics(seconds)
+    floor = bench_physics_floor(seconds, seed, floor_pairs)
     lock = bench_lockstep(seconds, seed)
     # last, so the HIL session does not share the machine with the runs above
     hil = (lambda: hil_availability()) if hil_seconds is None else (lambda: run_hil_bench(hil_seconds, seed))
     return {
         **stamp(BENCH_KIND, BENCH_VERSION),
         "lockstep_rtf": lock["rtf"],
-        "bare_physics_rtf": bare["rtf"],
-        "lockstep_vs_bare": lock["rtf"] / bare["rtf"],
+        **{k: v for k, v in floor.items() if k != "detail"},
         "tick_cost_us": lock["tick_cost_us"],
         "codec_us": bench_codec(),
         "bus_load": bench_bus_load(min(seconds, 5.0), seed),
         "learning": bench_learning(learn_trials, seed),
         "hil": hil(),
-        "detail": {"lockstep": {k: v for k, v in lock.items() if k != "tick_cost_us"}, "bare_physics": bare},
+        "detail": {"lockstep": {k: v for k, v in lock.items() if k != "tick_cost_us"}, "physics_floor": floor["detail"]},
         "machine": {"python": platform.python_version(), "platform": platform.platform(), "cpus": _cpus()},
     }
 

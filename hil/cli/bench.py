@@ -3,6 +3,12 @@
 ``--json`` is checked before anything is measured (exit 3). With ``--hil`` where neither a vcan
 nor User-Mode Linux can be had, the figures without HIL are written and the exit code is 6 (this
 install lacks what ``--hil`` needs).
+
+``--profile DIR`` is another job of the same verb: where a learning run's time goes, per layer of
+the stack (:mod:`hil.bench.profile`), written into DIR (``profile.json``, ``profile.txt``,
+``profile.pstats``) and the table printed; no other figure is measured, and the options of those
+figures (``--json``, ``--hil``) are refused beside it rather than ignored (exit 2). DIR is checked
+before anything runs (exit 3).
 """
 
 from __future__ import annotations
@@ -17,11 +23,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=positive(float), default=10.0, help="simulated seconds per figure")
     p.add_argument("--seed", type=non_negative(int), default=0, help="seed of the runs timed (default 0)")
     p.add_argument("--learn-trials", type=positive(int), default=10, help="learning trials timed (default 10)")
-    p.add_argument("--json", default="-", help="where to write the figures (default: stdout)")
+    p.add_argument("--json", default=None, help="where to write the figures (default: stdout)")
     p.add_argument("--hil", action="store_true",
                    help="also the HIL figures on a real vcan0 (User-Mode Linux where needed), beside the floor")
     p.add_argument("--hil-seconds", type=positive(float), default=10.0,
                    help="seconds of walking (and of each floor run) for --hil (default 10)")
+    p.add_argument("--profile", metavar="DIR", default=None,
+                   help="instead of the figures: profile a learning run (bring-up included, --seed) under "
+                        "cProfile and write where its time goes, per layer, into DIR (profile.json, profile.txt, "
+                        "profile.pstats); no other figure is run, and --json/--hil are refused beside it")
+    p.add_argument("--profile-trials", type=positive(int), default=3,
+                   help="learning trials of the --profile run (default 3)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -29,10 +41,13 @@ def run(args: argparse.Namespace) -> int:
     from controller.errors import EXIT_MISSING
     from hil.bench.run import run_bench
 
-    check_output_file(args.json, "--json")
+    if args.profile is not None:
+        return _profile(args)
+    json_path = "-" if args.json is None else args.json
+    check_output_file(json_path, "--json")
     result = run_bench(seconds=args.seconds, seed=args.seed, learn_trials=args.learn_trials,
                        hil_seconds=args.hil_seconds if args.hil else None)
-    write_json(args.json, result)
+    write_json(json_path, result)
     if args.hil:
         h = result["hil"]
         if not h.get("available"):
@@ -53,4 +68,20 @@ def run(args: argparse.Namespace) -> int:
         if h.get("error"):
             print(f"elegant-stepping bench --hil: {h['error']}", file=sys.stderr)
             return 1
+    return 0
+
+
+def _profile(args: argparse.Namespace) -> int:
+    """``--profile DIR``: the per-layer profile of a learning run into DIR, its table on stdout."""
+    from controller.cli.common import check_output_folder
+    from controller.errors import UsageError
+
+    if args.json is not None or args.hil:
+        raise UsageError(f"--profile writes only the profile; give {'--json' if args.json is not None else '--hil'} "
+                         "in a run without it")
+    check_output_folder(args.profile, "--profile")
+    from hil.bench.profile import table, write_profile
+
+    result = write_profile(args.profile, trials=args.profile_trials, seed=args.seed)
+    print(table(result), end="")
     return 0

@@ -92,7 +92,7 @@ def test_read_ticks_reads_the_controllers_format_from_a_time_on(tmp_path):
 def _cheap_bench(monkeypatch):
     import hil.bench.run as bench
 
-    monkeypatch.setattr(bench, "bench_bare_physics", lambda s: {"rtf": 2.0})
+    monkeypatch.setattr(bench, "bench_physics_floor", lambda s, seed=0, pairs=5: {"detail": {}})
     monkeypatch.setattr(bench, "bench_lockstep", lambda s, seed=0: {"rtf": 1.0, "tick_cost_us": {}})
     monkeypatch.setattr(bench, "bench_codec", lambda: {})
     monkeypatch.setattr(bench, "bench_bus_load", lambda s, seed=0: {})

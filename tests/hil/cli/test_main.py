@@ -43,8 +43,10 @@ def test_bench_reports_each_figure_beside_its_reference(tmp_path):
     out = tmp_path / "bench.json"
     assert main(["bench", "--seconds", "2", "--learn-trials", "2", "--json", str(out)]) == 0
     b = json.loads(out.read_text())
-    assert b["lockstep_rtf"] > 0 and b["bare_physics_rtf"] > 0
-    assert b["lockstep_vs_bare"] == pytest.approx(b["lockstep_rtf"] / b["bare_physics_rtf"])
+    assert b["lockstep_rtf"] > 0 and not {"bare_physics_rtf", "lockstep_vs_bare"} & b.keys()
+    assert b["stack_us_per_step"] > 0 and b["floor_us_per_step"] > 0 and b["floor_queries_us_per_step"] > 0
+    assert b["stack_vs_floor"] > 0 and b["stack_vs_floor_queries"] > 0
+    assert b["detail"]["physics_floor"]["replay_exact"] is True and len(b["detail"]["physics_floor"]["pairs"]) >= 3
     assert b["detail"]["lockstep"]["walking"] is True
     assert b["tick_cost_us"]["p99"] >= b["tick_cost_us"]["median"] > 0
     assert {"encode", "decode", "cantools_encode", "cantools_decode"} <= b["codec_us"].keys()
