@@ -119,6 +119,7 @@ class RigPlant:
         self._rail = names["rail"]
         self._joint_index = {name: names[name] for name in LEG_JOINTS}
         self._leg = [self._joint_index[n] for n in LEG_JOINTS]
+        self._read_joints = [*self._leg, self._rail]  # what each step reads back: the leg, then the rail
         self.foot_link = names["ankle"]
         self.shank_link = self._joint_index["knee"]
         self.thigh_link = self._joint_index["hip"]
@@ -167,6 +168,7 @@ class RigPlant:
         x, v = p.getJointState(self.robot, self._rail)[:2]
         p.resetJointState(self.robot, self._rail, x - distance_m, v)
         self.set_rail_speed(self.rail_speed_m_s)
+        self._read_states()
         self._contacts_t_s = -1.0
 
     def add_obstacle(self, obstacle: Obstacle) -> int:
@@ -208,12 +210,15 @@ class RigPlant:
         self._read_states()
 
     def _read_states(self) -> None:
-        self._states = tuple(pybullet.getJointStates(self.robot, self._leg, physicsClientId=self._cid))
+        # the leg's joints and the rail in one call: the rail's state is the last one
+        self._states = tuple(pybullet.getJointStates(self.robot, self._read_joints, physicsClientId=self._cid))
 
     # -- sensor board side -----------------------------------------------------------------
     @property
     def carriage_x_m(self) -> float:
-        return pybullet.getJointState(self.robot, self._rail, physicsClientId=self._cid)[0]
+        """The carriage's position on the rail [m], as read after the last step (or reset, or
+        rewind): nothing moves it between steps."""
+        return self._states[-1][0]
 
     def range_m(self) -> float | None:
         """True distance along the range sensor's ray to the first hit within 3 m, else None."""

@@ -53,6 +53,9 @@ class RangeFilter:
         self._last_valid_t_s = -math.inf
         self._outliers_in_a_row = 0
         self.active = False
+        # F and Q by dt [s]: the tick's dt takes a handful of float values (the clock is a sum of
+        # steps), so each pair is built once, not every tick (filterpy's predict never changes them)
+        self._fq: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
     def _init(self, z: float) -> None:
         self.kf.x = np.array([[z], [0.0]])
@@ -65,9 +68,14 @@ class RangeFilter:
         if not math.isnan(self._t_s) and self.active:
             dt = now_s - self._t_s
             if dt > 0.0:
-                q = self.config.accel_noise_m_s2**2
-                self.kf.F = np.array([[1.0, dt], [0.0, 1.0]])
-                self.kf.Q = q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+                fq = self._fq.get(dt)
+                if fq is None:  # built once per dt: the same floats give the same matrices, bit for bit
+                    if len(self._fq) >= 16:
+                        self._fq.clear()
+                    q = self.config.accel_noise_m_s2**2
+                    fq = self._fq[dt] = (np.array([[1.0, dt], [0.0, 1.0]]),
+                                         q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]))
+                self.kf.F, self.kf.Q = fq
                 self.kf.predict()
         self._t_s = now_s
         if self.active and now_s - self._last_valid_t_s > self.config.stale_s:

@@ -280,7 +280,7 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
     cid = plant._cid
     robot = plant.robot
     leg = list(plant._leg)
-    rail = plant._rail
+    joints = list(plant._read_joints)  # what the plant reads back each step: the leg, then the rail
     foot_link, shank_link = plant.foot_link, plant.shank_link
     threshold = cfg.contact_force_n
     offset_x, z0, aim = cfg.sensor_offset_x_m, cfg.sensor_height_m, cfg.sensor_aim_m
@@ -298,21 +298,21 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
     set_motors = pybullet.setJointMotorControlArray
     step_sim = pybullet.stepSimulation
     joint_states = pybullet.getJointStates
-    joint_state = pybullet.getJointState
     contact_points = pybullet.getContactPoints
     ray = pybullet.rayTest
     rays = pybullet.rayTestBatch
     link_state = pybullet.getLinkState
     torque_control = pybullet.TORQUE_CONTROL
     x = 0.0
+    last: Any = plant._states
     switches = (False, False)  # what the sensor board would send: the floor does the plant's work for it
 
     def run_ops(ops: tuple) -> None:
-        nonlocal x, switches
+        nonlocal x, switches, last
         for op in ops:
             name = op[0]
             if name == "rail":
-                x = joint_state(robot, rail, physicsClientId=cid)[0]
+                x = last[-1][0]  # read with the joint states, as the plant reads it
             elif name == "contacts":
                 foot = shin = False
                 for pt in contact_points(bodyA=robot, physicsClientId=cid):
@@ -341,10 +341,12 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
                 bodies.clear()
             elif name == "rewind":
                 plant.rewind_rail(op[1])
+                last = plant._states  # the rail read back after the move, as the plant does
             elif name == "rail_speed":
                 plant.set_rail_speed(op[1])
             elif name == "reset":
                 plant.reset(*op[1:])
+                last = plant._states
             else:
                 raise ValueError(f"unknown op {name!r} in the recording")
 
@@ -355,7 +357,7 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
     for k in range(n):
         set_motors(robot, leg, torque_control, forces=torques[k], physicsClientId=cid)
         step_sim(physicsClientId=cid)
-        out[k] = joint_states(robot, leg, physicsClientId=cid)
+        out[k] = last = joint_states(robot, joints, physicsClientId=cid)
         ops = after[k + 1]
         if ops is not None:
             run_ops(ops)

@@ -40,7 +40,6 @@ import statistics
 import time
 from typing import Any
 
-import can
 
 from controller.errors import stamp
 from controller.supervisor import Phase
@@ -109,7 +108,7 @@ def bench_codec(n: int = 20000) -> dict[str, float]:
 def bench_bus_load(seconds: float, seed: int = 0, bitrate: int = 1_000_000) -> dict[str, Any]:
     """Walk with a listener on the bus; load over the walking window from bit-exact frame lengths."""
     with Lockstep(LockstepConfig(seed=seed)) as ls:
-        tap = can.Bus(interface="virtual", channel=ls.firmware_bus.channel_id, receive_own_messages=False)
+        tap = ls.observer()
         try:
             # bring the leg up without recording, then record a steady walking window
             while ls.loop.phase is not Phase.WALK and ls.t_s < 10.0:

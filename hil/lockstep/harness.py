@@ -27,6 +27,7 @@ from controller.stepping.premotor import Premotor
 from firmware_sim.leg import LegHardware, SimulatedLeg
 from firmware_sim.plant import RigConfig
 from hil.faults.model import BusOffBus, CutBus, FaultSpec, FaultyBus
+from hil.lockstep.localbus import BUSES
 
 _channel_counter = itertools.count()
 
@@ -86,13 +87,18 @@ class LegHarness:
 
 
 class Lockstep(LegHarness):
+    """``bus``: the in-process bus, a name of :data:`hil.lockstep.localbus.BUSES` (default
+    ``"local"``, python-can's ``BusABC`` without copies, locks or clock reads; ``"virtual"`` is
+    python-can's own; both give the same run)."""
+
     def __init__(self, config: LockstepConfig = LockstepConfig(), *, premotor: Premotor | None = None,
-                 gui: bool = False) -> None:
+                 gui: bool = False, bus: str = "local") -> None:
         self.config = config
         channel = f"lockstep-{uuid.uuid4().hex}-{next(_channel_counter)}"
         self.channel = channel
-        self.firmware_bus = can.Bus(interface="virtual", channel=channel)
-        self.controller_bus = can.Bus(interface="virtual", channel=channel)
+        self._make_bus = BUSES[bus]
+        self.firmware_bus = self._make_bus(channel)
+        self.controller_bus = self._make_bus(channel)
         self.leg = SimulatedLeg(self.firmware_bus, rig=config.rig, hardware=config.hardware, seed=config.seed, gui=gui)
         self.loop = ControlLoop(config.controller, self.controller_bus, premotor=premotor)
         self.ticks_per_control = int(round(config.rig.physics_hz / config.controller.rate_hz))
@@ -118,7 +124,7 @@ class Lockstep(LegHarness):
 
     def observer(self) -> can.BusABC:
         """A third node on the bus that hears every frame (read it often: its queue has no bound)."""
-        return can.Bus(interface="virtual", channel=self.channel)
+        return self._make_bus(self.channel)
 
     def inject_faults(self, to_leg: FaultSpec = FaultSpec(), from_leg: FaultSpec = FaultSpec(), *, seed: int = 0,
                       on_send=None) -> FaultyBus:
