@@ -31,16 +31,18 @@ at its end to a mistake in its command line.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import importlib.util
 import json
 import logging
 import math
 import os
+import signal
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 EXTRAS: dict[str, tuple[str, ...]] = {
     "sim": ("pybullet",),
@@ -183,6 +185,22 @@ def add_bus_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--channel", default=None,
                    help="bus channel, e.g. can0 or vcan0 (default: the configuration file's, else python-can's)")
     p.add_argument("--bitrate", type=int, default=None, help="bit rate [bit/s] (ignored by vcan)")
+
+
+def _raise_interrupt(signum, frame) -> None:  # noqa: ARG001
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def sigterm_as_sigint() -> Iterator[None]:
+    """Within the block SIGTERM stops the verb as Ctrl-C does (a ``KeyboardInterrupt``), so a run
+    killed politely keeps what finished and resumes like an interrupted one; the previous handler
+    is put back after."""
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def write_json(path: str | None, data: Any, option: str = "--json") -> None:

@@ -9,10 +9,9 @@ the run with one line and exit 130; the finished trials are kept.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 
-from controller.cli.common import non_negative, positive
+from controller.cli.common import non_negative, positive, sigterm_as_sigint
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -35,10 +34,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-learning", action="store_true", help="freeze the weights at zero (the baseline)")
     p.add_argument("--no-figures", action="store_true", help="skip DIR/figures/")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
 
 
 def describe(config, summary: dict) -> str:
@@ -67,16 +62,14 @@ def run(args: argparse.Namespace) -> int:
         method=args.method,
         trace_trials=FIGURE_TRACES,
     )
-    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM stops like SIGINT: what finished is kept
-    try:
-        outcome = learn_into(config, args.out, progress=not args.quiet, figures=not args.no_figures,
-                             overwrite=args.overwrite)
-    except RunStopped as stop:
-        print(f"elegant-stepping learn: stopped after {stop.recorded} of {stop.total} trials; "
-              f"run the same command again to resume", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    with sigterm_as_sigint():  # SIGTERM stops like SIGINT: what finished is kept
+        try:
+            outcome = learn_into(config, args.out, progress=not args.quiet, figures=not args.no_figures,
+                                 overwrite=args.overwrite)
+        except RunStopped as stop:
+            print(f"elegant-stepping learn: stopped after {stop.recorded} of {stop.total} trials; "
+                  f"run the same command again to resume", file=sys.stderr)
+            return EXIT_INTERRUPTED
     s = outcome.metrics["summary"]
     if outcome.status == "finished":
         print(f"{args.out} already holds this finished run ({describe(config, s)}); nothing to run "

@@ -8,12 +8,11 @@ is refused unless ``--overwrite``; SIGINT and SIGTERM stop the workers too and e
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from controller.cli.common import positive
+from controller.cli.common import positive, sigterm_as_sigint
 
 
 def _option(parse: Callable[[str], Any]) -> Callable[[str], Any]:
@@ -76,10 +75,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def run(args: argparse.Namespace) -> int:
     from controller.errors import EXIT_INTERRUPTED
     from hil.analysis.report import write_report
@@ -102,15 +97,13 @@ def run(args: argparse.Namespace) -> int:
         dask=args.dask,
         **({} if args.workers is None else {"workers": args.workers}),
     )
-    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM stops like SIGINT, workers included
-    try:
-        stats = run_sweep(config, progress=not args.quiet, overwrite=args.overwrite)
-    except SweepStopped as stop:
-        print(f"elegant-stepping sweep: stopped with {stop.finished} of {stop.total} cells finished (the running "
-              f"cells keep their finished trials); run the same command again to resume", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    with sigterm_as_sigint():  # SIGTERM stops like SIGINT, workers included
+        try:
+            stats = run_sweep(config, progress=not args.quiet, overwrite=args.overwrite)
+        except SweepStopped as stop:
+            print(f"elegant-stepping sweep: stopped with {stop.finished} of {stop.total} cells finished (the running "
+                  f"cells keep their finished trials); run the same command again to resume", file=sys.stderr)
+            return EXIT_INTERRUPTED
     if stats["rows"]:
         write_report(config.out_dir)
     print(f"sweep: {stats['cells']} cells, {stats['ran']} run, {stats['resumed']} resumed, "

@@ -154,6 +154,26 @@ def copy_out(work: Path, out: Path) -> None:
         shutil.rmtree(work, ignore_errors=True)
 
 
+def controller_facts(final: dict[str, Any], trials: int, rc_controller: int | None, rc_firmware: int | None,
+                     error: str | None) -> dict[str, Any]:
+    """The ``hil`` section's facts from the controller's final record, the same in both clocks'
+    sessions: frames each way, its last phase and fault, reflexes, the weights' L1 norm, the exit
+    codes, trials completed and the session's error."""
+    weights = final.get("weights")
+    return {
+        "frames_controller_tx": final.get("frames_tx"),
+        "frames_controller_rx": final.get("frames_rx"),
+        "frames_controller_dropped": final.get("frames_dropped"),
+        "controller_final_phase": final.get("phase"),
+        "fault_cause": final.get("fault_cause"),
+        "trials_completed": trials,
+        "reflexes": final.get("reflexes"),
+        "weights_l1": None if weights is None else float(np.abs(np.asarray(weights)).sum()),
+        "exit_codes": {"controller": rc_controller, "firmware_sim": rc_firmware},
+        "error": error,
+    }
+
+
 def session_controller_config(config: LearnConfig, profile: Profile | None = None) -> ControllerConfig:
     """The controller configuration of a session on this platform (``profile``, default
     :func:`hil.profile.current`): the learning run's, as :meth:`hil.profile.Profile.controller_config`
@@ -318,7 +338,6 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
     phases = [r["phase"] for r in records.get("phase", [])]
     trial_dicts = assemble_trials(truths, records)
     wall_s = time.monotonic() - wall0
-    weights = final.get("weights")
     bus = {**recorder.summary(), "file": str(out / log_path.name)}
     try:  # the load as a CAN engineer measures it: from the recording, bring-up left out
         bus["load"] = bus_load_from_log(out / log_path.name, skip_s=t_walk or 0.0)
@@ -352,21 +371,12 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
             "started_unix": started_unix,
             "walk_after_s": t_walk,
             "bus": bus,
-            "frames_controller_tx": final.get("frames_tx"),
-            "frames_controller_rx": final.get("frames_rx"),
-            "frames_controller_dropped": final.get("frames_dropped"),
             "firmware_host": bye.get("host"),
             "phases": phases,
             "axes_while_running": axes_running,
             "axes_at_end": {n: a["state"] for n, a in bye.get("axes", {}).items()},
             "watchdog_trips": watchdog_trips,
-            "controller_final_phase": final.get("phase"),
-            "fault_cause": final.get("fault_cause"),
-            "trials_completed": len(trial_dicts),
-            "reflexes": final.get("reflexes"),
-            "weights_l1": None if weights is None else float(np.abs(np.asarray(weights)).sum()),
-            "exit_codes": {"controller": rc_controller, "firmware_sim": rc_firmware},
-            "error": error,
+            **controller_facts(final, len(trial_dicts), rc_controller, rc_firmware, error),
         },
     }
     if fs is not None:

@@ -49,7 +49,7 @@ from controller.errors import stamp
 from hil.analysis.metrics import METRICS_FORMAT
 from hil.profile import current as current_profile
 from hil.session.outcome import HilError
-from hil.session.run import copy_out, session_envs, start_recorder, stop_session
+from hil.session.run import controller_facts, copy_out, session_envs, start_recorder, stop_session
 from hil.session.scenario import ScenarioClient
 
 if TYPE_CHECKING:
@@ -248,7 +248,6 @@ def run_sim_session(*, trials: int, seed: int, out: str | Path, channel: str = "
     trial_dicts = [fill_from_records(t, times, records, bursts) for t, times in plant_trials]
     wall_s = time.monotonic() - wall0
     sim_s = done.get("t_s", bye.get("t_s", 0.0)) or 0.0
-    weights = final.get("weights")
     bus = {**recorder.summary(), "file": str(out / log_path.name)}
     phases = [r["phase"] for r in records.get("phase", [])]
     figures = done or bye  # the plant's figures at the end of the trials
@@ -276,21 +275,12 @@ def run_sim_session(*, trials: int, seed: int, out: str | Path, channel: str = "
             "walk_after_s": t_walk,
             "bus": bus,
             "sync": {"plant": figures.get("sync"), "controller_gone": figures.get("controller_gone")},
-            "frames_controller_tx": final.get("frames_tx"),
-            "frames_controller_rx": final.get("frames_rx"),
-            "frames_controller_dropped": final.get("frames_dropped"),
             "firmware_host": figures.get("host"),
             "phases": phases,
             "axes_while_running": {n: a["state"] for n, a in (done.get("axes") or {}).items()},
             "axes_at_end": {n: a["state"] for n, a in (bye.get("axes") or {}).items()},
             "watchdog_expired_axes": figures.get("watchdog_expired"),
-            "controller_final_phase": final.get("phase"),
-            "fault_cause": final.get("fault_cause"),
-            "trials_completed": len(trial_dicts),
-            "reflexes": final.get("reflexes"),
-            "weights_l1": None if weights is None else float(np.abs(np.asarray(weights)).sum()),
-            "exit_codes": {"controller": rc_controller, "firmware_sim": rc_firmware},
-            "error": error,
+            **controller_facts(final, len(trial_dicts), rc_controller, rc_firmware, error),
         },
     }
     if faults is not None:
