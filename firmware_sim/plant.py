@@ -148,6 +148,8 @@ class RigPlant:
         self._torque = [0.0, 0.0]
         self._contacts_t_s = -1.0
         self._contacts = (False, False)
+        self._contact_points: tuple = ()
+        self._points_fresh = False
         self._read_states()
 
     def set_rail_speed(self, speed_m_s: float) -> None:
@@ -177,12 +179,14 @@ class RigPlant:
             path.write_text(urdf.obstacle_urdf(obstacle.height_m, obstacle.depth_m))
         body = self._p.loadURDF(str(path), basePosition=[obstacle.near_edge_x_m, 0.0, 0.0], useFixedBase=True)
         self._obstacles.append((body, obstacle))
+        self._points_fresh = False  # a body id may be reused: the cached points no longer name the obstacles
         return body
 
     def clear_obstacles(self) -> None:
         for body, _ in self._obstacles:
             self._p.removeBody(body)
         self._obstacles.clear()
+        self._points_fresh = False
 
     @property
     def obstacles(self) -> list[Obstacle]:
@@ -255,7 +259,8 @@ class RigPlant:
             return self._contacts
         foot = shin = False
         threshold = self.config.contact_force_n
-        for pt in pybullet.getContactPoints(bodyA=self.robot, physicsClientId=self._cid):
+        points = pybullet.getContactPoints(bodyA=self.robot, physicsClientId=self._cid)
+        for pt in points:
             if pt[9] > threshold:
                 if pt[3] == self.foot_link:
                     foot = True
@@ -263,6 +268,8 @@ class RigPlant:
                     shin = True
         self._contacts = (foot, shin)
         self._contacts_t_s = self.t_s
+        self._contact_points = points
+        self._points_fresh = True
         return self._contacts
 
     # -- ground truth for experiments (never on the bus) ------------------------------------
@@ -272,9 +279,22 @@ class RigPlant:
         return pos[0], pos[2] - 0.02
 
     def obstacle_contact(self) -> bool:
-        """True while any leg link touches any obstacle."""
-        for body, _ in self._obstacles:
-            if self._p.getContactPoints(bodyA=self.robot, bodyB=body):
+        """True while any leg link touches any obstacle.
+
+        Answered from the leg's contact points that :meth:`contacts` read this step, when it did
+        and no obstacle came or went since (PyBullet's ``getContactPoints(bodyA=leg, bodyB=b)`` is
+        that same list filtered on ``b``: one query fewer per step); else asked per obstacle."""
+        obstacles = self._obstacles
+        if not obstacles:
+            return False
+        if self._points_fresh and self._contacts_t_s == self.t_s:
+            bodies = [body for body, _ in obstacles]
+            for pt in self._contact_points:
+                if pt[2] in bodies:
+                    return True
+            return False
+        for body, _ in obstacles:
+            if pybullet.getContactPoints(bodyA=self.robot, bodyB=body, physicsClientId=self._cid):
                 return True
         return False
 

@@ -9,7 +9,8 @@ motion (a collapsed leg with zero torque) is no floor, it costs more a step than
    (the plant's held torques, already clamped, read as it steps), the scenario events between
    steps (obstacle placed or cleared, rail rewound, rail speed set, reset), the queries the stack
    made of PyBullet between steps (rail position, contacts, range ray, profile beams, foot position,
-   obstacle contact: the sensor board at its rates and the experiment's ground truth), and the leg's
+   obstacle contact where the plant could not answer it from the step's contact points: the sensor
+   board at its rates and the experiment's ground truth), and the leg's
    joint states after the step. It is recorded from outside: the run's plant is switched to a
    recording subclass (:class:`_RecordingPlant`) that calls the plant's own methods and notes them;
    nothing under ``firmware_sim`` or ``controller`` changes, and the recording run is never timed.
@@ -182,8 +183,10 @@ class _RecordingPlant(RigPlant):
         return r
 
     def obstacle_contact(self) -> bool:
+        # answered from the contact points of this step when the plant has them: no query then
+        cached = self._points_fresh and self._contacts_t_s == self.t_s
         r = RigPlant.obstacle_contact(self)
-        if self._obstacles:
+        if self._obstacles and not cached:
             self._note_query("obstacle_contact")
         return r
 
