@@ -120,6 +120,13 @@ class ControlLoop:
         self._range_samples_seen = 0
         self.trajectory = FootTrajectory(config.gait, config.cpg, config.geometry)
         self.muscles = {a.name: LowPass(config.gait.muscle_tau_s) for a in self.axes}
+        self._foot_height_m = self.foot_height_m  # bound once: the reflexes get it every tick
+        self._hip_muscle = self.muscles["hip"]
+        self._knee_muscle = self.muscles["knee"]
+        # tick's constants (the config is frozen): the same products it would compute every tick
+        self._period_s = config.period_s
+        self._late_period_s = config.late_factor * self._period_s
+        self._max_dt_s = config.max_dt_factor * self._period_s
         self.stats = LoopStats()
         self.last_cpg: CpgOutput | None = None
         self._last_tick_s = math.nan
@@ -150,27 +157,37 @@ class ControlLoop:
         return self.supervisor.lifecycle
 
     def tick(self, now_s: float) -> None:
-        period = self.config.period_s
+        stats = self.stats
         if math.isnan(self._last_tick_s):
-            dt = period
+            dt = self._period_s
         else:
             dt = now_s - self._last_tick_s
-            if dt > self.config.late_factor * period:
-                self.stats.late_ticks += 1
-            self.stats.max_period_s = max(self.stats.max_period_s, dt)
+            if dt > self._late_period_s:
+                stats.late_ticks += 1
+            if dt > stats.max_period_s:  # max(stats.max_period_s, dt), without the call
+                stats.max_period_s = dt
         self._last_tick_s = now_s
-        self.stats.ticks += 1
-        dt = min(max(dt, 0.0), self.config.max_dt_factor * period)
+        stats.ticks += 1
+        # min(max(dt, 0.0), max_dt_s), without the calls
+        if dt < 0.0:
+            dt = 0.0
+        if dt > self._max_dt_s:
+            dt = self._max_dt_s
 
-        self.io.drain(now_s)
+        io = self.io
+        io.drain(now_s)
         sup = self.supervisor
-        if self.io.dropped["unexpected_sender"] != self._foreign_seen:
+        if io.dropped.get("unexpected_sender", 0) != self._foreign_seen:  # (.get: no Counter.__missing__ call)
             self._another_master(now_s)
         before = sup.phase
         sup.update(now_s)
-        for a in sup.check_watchdog_confirmations(now_s):
-            self._write_watchdog(a, now_s)  # no read-back yet, or another value: again
+        if sup.pending_watchdog:  # (check_watchdog_confirmations returns [] without one)
+            for a in sup.check_watchdog_confirmations(now_s):
+                self._write_watchdog(a, now_s)  # no read-back yet, or another value: again
         phase = sup.phase
+        if phase is Phase.WALK:  # the phase of nearly every tick, tested first
+            self._walk(now_s, dt)
+            return
         if phase is Phase.INACTIVE:
             if before is Phase.WAIT_NODES:
                 self._auto_arm_pending = self.config.auto_arm
@@ -188,8 +205,6 @@ class ControlLoop:
                 for a in self.axes:
                     self.muscles[a.name].reset(a.pos_rad)
             self._ramp(now_s)
-        elif phase is Phase.WALK:
-            self._walk(now_s, dt)
         elif phase is Phase.FAULT:
             self._safe_stop(now_s)
 
@@ -372,11 +387,10 @@ class ControlLoop:
         if s.range_samples != self._range_samples_seen:
             self._range_samples_seen = s.range_samples
             f.reading(s.range_m, s.range_valid, s.range_t_s)
-        estimate = f.estimate_m
         if s.profile_samples != self._profile_samples_seen:
             self._profile_samples_seen = s.profile_samples
-            self.height.update(s.profile_m, estimate)
-        elif estimate is None:
+            self.height.update(s.profile_m, f.estimate_m)
+        elif not f.active:  # estimate_m is None (read only when a profile sample needs it)
             self.height.clear()
 
     def foot_height_m(self) -> float:
@@ -402,7 +416,7 @@ class ControlLoop:
             if steps and not math.isnan(steps[-1].swing_start_s):
                 steps[-1].swing_s = now_s - steps[-1].swing_start_s
             steps.append(self._gate(now_s))
-        reflex = self.reflexes.update(now_s, out, self.sensors.foot, self.sensors.shin, self.foot_height_m)
+        reflex = self.reflexes.update(now_s, out, self.sensors.foot, self.sensors.shin, self._foot_height_m)
         if reflex is not None:
             self.stats.reflexes.append(reflex)
             self.premotor.on_reflex(reflex.kind, now_s)
@@ -414,8 +428,9 @@ class ControlLoop:
         self.last_cpg = out
         x, z = self.trajectory.target(out)
         hip, knee = inverse(self.config.geometry, x, z)
-        self.io.send(self.hip.pos_frame(self.muscles["hip"](hip, dt)))
-        self.io.send(self.knee.pos_frame(self.muscles["knee"](knee, dt)))
+        send = self.io.send
+        send(self.hip.pos_frame(self._hip_muscle(hip, dt)))
+        send(self.knee.pos_frame(self._knee_muscle(knee, dt)))
         self.stats.command_ticks += 1
 
     def _safe_stop(self, now_s: float) -> None:

@@ -97,27 +97,38 @@ class ThermalModel:
         self.fet_c = params.ambient_c
         self._r_phase = motor.params.phase_resistance_ohm
         self._inv_kt = 1.0 / motor.params.torque_constant_nm_per_a
-        self._dt = math.nan
         self._a_m = self._a_f = 0.0
         self.max_motor_c = self.max_fet_c = -math.inf
         self.min_bus_voltage_v = math.inf
         self.max_bus_voltage_v = -math.inf
 
+    @property
+    def params(self) -> ThermalParams:
+        return self._params
+
+    @params.setter
+    def params(self, params: ThermalParams) -> None:
+        # The frozen params' constants that step reads every physics step, as plain attributes
+        # (hot path); the step factors are recomputed at the next step.
+        self._params = params
+        self._rth_m = params.motor_thermal_resistance_k_per_w
+        self._r_fet = params.fet_resistance_ohm
+        self._fet_idle_w = params.fet_idle_loss_w
+        self._rth_f = params.fet_thermal_resistance_k_per_w
+        self._dt = math.nan
+
     def step(self, dt_s: float) -> None:
         """Advance by ``dt_s`` with the current the motor applies now (constant over the step)."""
         if dt_s != self._dt:
-            p = self.params
+            p = self._params
             self._dt = dt_s
             self._a_m = -math.expm1(-dt_s / p.motor_time_constant_s)
             self._a_f = -math.expm1(-dt_s / p.fet_time_constant_s)
         iq = self.motor.torque_estimate_nm * self._inv_kt
         i2 = iq * iq
-        p = self.params
         amb = self.ambient_c
-        self.motor_c += (amb + (i2 * self._r_phase + self.extra_motor_loss_w) * p.motor_thermal_resistance_k_per_w
-                         - self.motor_c) * self._a_m
-        self.fet_c += (amb + (i2 * p.fet_resistance_ohm + p.fet_idle_loss_w) * p.fet_thermal_resistance_k_per_w
-                       - self.fet_c) * self._a_f
+        self.motor_c += (amb + (i2 * self._r_phase + self.extra_motor_loss_w) * self._rth_m - self.motor_c) * self._a_m
+        self.fet_c += (amb + (i2 * self._r_fet + self._fet_idle_w) * self._rth_f - self.fet_c) * self._a_f
 
     @property
     def bus_voltage_v(self) -> float:

@@ -149,6 +149,17 @@ class MessageCodec:
         self._int_scaling = tuple((i, scale, offset) for i, scale, offset, _lo, _hi in self._int_fields)
         self._pack_raw = self._struct.pack if self._struct is not None else None
         self._unpack_raw = self._struct.unpack_from if self._struct is not None else None
+        # pack's integer signals: (index, scale, offset, lo, hi, exact). ``exact`` (scale 1, offset
+        # 0): an int value is its own raw value (the general (v - 0.0) / 1.0, rounded, gives back the
+        # same int for every int a signal of at most 32 bits holds), so it skips the float round trip.
+        self._pack_int_fields = tuple(
+            (i, scale, offset, lo, hi, scale == 1.0 and offset == 0.0)
+            for i, scale, offset, lo, hi in self._int_fields
+        )
+        self.pack_floats = self._pack_raw if self._float_only else None
+        """Hot path: for a compiled message whose signals are all floats, the struct's own ``pack``:
+        the bytes :meth:`pack` gives for the right number of values, without its count check (a
+        wrong count raises ``struct.error``); None for any other message."""
 
     @staticmethod
     def _raw_limits(sig) -> tuple[float, float] | None:
@@ -191,12 +202,15 @@ class MessageCodec:
             return pack_raw(*values)
         raw = list(values)
         isfinite = math.isfinite
-        for i, scale, offset, lo, hi in self._int_fields:
+        for i, scale, offset, lo, hi, exact in self._pack_int_fields:
             value = values[i]
-            r = (value - offset) / scale
-            if not isfinite(r):
-                raise ValueError(f"{self.name}: non-finite value {value!r} for an integer signal")
-            r = round(r)
+            if exact and type(value) is int:
+                r = value  # hot path: an int for an unscaled signal (see _pack_int_fields)
+            else:
+                r = (value - offset) / scale
+                if not isfinite(r):
+                    raise ValueError(f"{self.name}: non-finite value {value!r} for an integer signal")
+                r = round(r)
             if r < lo or r > hi:
                 raise ValueError(f"{self.name}: value {value!r} outside the signal's raw range {(lo, hi)}")
             raw[i] = r

@@ -10,12 +10,16 @@ from __future__ import annotations
 
 import can
 
+_new_object = object.__new__
+"""``Frame.__new__`` (can.Message defines none), bound once: looked up through the class it costs
+~0.1 us a frame on the hot path."""
+
 
 class Frame(can.Message):
     __slots__ = ()
 
     def __deepcopy__(self, memo: dict | None) -> "Frame":
-        new = Frame.__new__(Frame)
+        new = _new_object(Frame)
         new.timestamp = self.timestamp
         new.arbitration_id = self.arbitration_id
         new.is_extended_id = self.is_extended_id
@@ -34,11 +38,14 @@ class Frame(can.Message):
 
 
 def data_frame(arbitration_id: int, data: bytes | bytearray) -> Frame:
-    """A standard-id classic data frame (built directly: this runs thousands of times a second)."""
+    """A standard-id classic data frame (built directly: this runs thousands of times a second).
+
+    Hot path: :data:`_new_object` instead of ``Frame.__new__``, then every slot assigned once.
+    """
     dlc = len(data)
     if not 0 <= arbitration_id <= 0x7FF or dlc > 8:
         raise ValueError(f"not a standard CAN frame: id {arbitration_id:#x}, {dlc} bytes")
-    f = Frame.__new__(Frame)
+    f = _new_object(Frame)
     f.timestamp = 0.0
     f.arbitration_id = arbitration_id
     f.is_extended_id = False

@@ -126,6 +126,23 @@ class FeedbackLimits:
                 raise ValueError(f"FeedbackLimits.{name} must be finite and > 0, got {value!r}")
 
 
+def _input_pos_tail_still(codec) -> bytes | None:
+    """Set_Input_Pos's payload after Input_Pos when Vel_FF and Torque_FF are 0: bytes 4-7 of
+    ``codec.pack(pos, 0.0, 0.0)`` for any ``pos``, so that payload is ``float32(pos) + tail``, where
+    the DBC puts Input_Pos as an unscaled little-endian float32 in bytes 0-3 and every other signal
+    after it (ODrive's layout); None otherwise (the codec packs every frame)."""
+    sig = next(s for s in codec.message.signals if s.name == "Input_Pos")
+    others = [s for s in codec.message.signals if s is not sig]
+    if not (sig.is_float and sig.length == 32 and sig.start == 0 and sig.byte_order == "little_endian"
+            and sig.scale == 1 and sig.offset == 0 and codec.dlc == 8 and codec.signal_names[0] == "Input_Pos"
+            and all(s.start >= 32 for s in others)):
+        return None
+    payload = codec.pack(0.0, 0.0, 0.0)
+    if payload[:4] != _F32.pack(0.0) or codec.pack(1.5, 0.0, 0.0) != _F32.pack(1.5) + payload[4:]:
+        return None
+    return payload[4:]
+
+
 def _f32(x: float) -> float:
     """``x`` rounded to the nearest float32 (saturated at the float32 range)."""
     return _F32.unpack(_F32.pack(min(_F32_MAX, max(-_F32_MAX, x))))[0]
@@ -192,9 +209,16 @@ class AxisLink:
         self._offset_rev = config.zero_offset_rev
         self.pos_bounds_rev = float32_target_bounds_rev(config)
         self._vel_max_rev_s = feedback_limits.max_vel_rev_s
-        self._feedback = feedback_limits
         self._pos_lo_rad = config.min_rad - feedback_limits.pos_slack_rad
         self._pos_hi_rad = config.max_rad + feedback_limits.pos_slack_rad
+        # the 500 Hz paths read these plain attributes (the config and the limits are frozen)
+        self._max_speed_rad_s = feedback_limits.max_joint_speed_rad_s
+        self._min_jump_dt_s = feedback_limits.min_jump_dt_s
+        self._jump_slack_rad = feedback_limits.jump_slack_rad
+        self._min_rad = config.min_rad
+        self._max_rad = config.max_rad
+        self._pos_lo_rev, self._pos_hi_rev = self.pos_bounds_rev
+        self._pos_tail_still = _input_pos_tail_still(self._pos)
         self.reset_feedback()
         self.clamped_targets = 0
         self.last_target_rad = math.nan
@@ -245,11 +269,10 @@ class AxisLink:
         pos_rad = (pos_rev - self._offset_rev) * self._rad_per_rev
         if not self._pos_lo_rad <= pos_rad <= self._pos_hi_rad:
             return False
-        limits = self._feedback
         last_s = self.encoder_t_s
         if last_s != -math.inf and abs(pos_rad - self.pos_rad) > (
-                limits.max_joint_speed_rad_s * max(now_s - last_s, limits.min_jump_dt_s) + limits.jump_slack_rad):
-            return False  # a jump no joint makes: a corrupted reading
+                self._max_speed_rad_s * max(now_s - last_s, self._min_jump_dt_s) + self._jump_slack_rad):
+            return False  # a jump no joint makes: a corrupted reading (bound: see FeedbackLimits)
         self.pos_rad = pos_rad
         self.vel_rad_s = vel_rev_s * self._rad_per_rev
         self.encoder_t_s = now_s
@@ -312,15 +335,21 @@ class AxisLink:
         """Set_Input_Pos for joint target ``q_rad`` [rad] (clamped, see :meth:`clamp`) with
         velocity feed-forward ``qd_rad_s`` [rad/s] (0 if not finite, clamped to the signal's
         +-32 rev/s). The encoded position always lies in ``pos_bounds_rev``."""
-        q = self.clamp(q_rad)
+        # inside the limits (nearly always) without the call; clamp() decides every other case
+        q = q_rad if self._min_rad <= q_rad <= self._max_rad else self.clamp(q_rad)
         self.last_target_rad = q
+        rev = self._offset_rev + q * self._rev_per_rad
+        lo = self._pos_lo_rev
+        hi = self._pos_hi_rev
+        rev = lo if rev < lo else (hi if rev > hi else rev)
+        tail = self._pos_tail_still
+        if qd_rad_s == 0.0 and tail is not None:
+            # no feed-forward (every target of the loop's): the bytes the codec packs for a Vel_FF
+            # of +-0.0, the float32 and a fixed tail (see _input_pos_tail_still)
+            return data_frame(self.pos_id, _F32.pack(rev) + tail)
         vel_ff = qd_rad_s * self._rev_per_rad if math.isfinite(qd_rad_s) else 0.0
         vel_ff = 32.0 if vel_ff > 32.0 else (-32.0 if vel_ff < -32.0 else vel_ff)
-        rev = self._offset_rev + q * self._rev_per_rad
-        lo, hi = self.pos_bounds_rev
-        rev = lo if rev < lo else (hi if rev > hi else rev)
-        data = self._pos.pack(rev, vel_ff, 0.0)
-        return data_frame(self.pos_id, data)
+        return data_frame(self.pos_id, self._pos.pack(rev, vel_ff, 0.0))
 
     def state_frame(self, state: AxisState) -> can.Message:
         return data_frame(self.state_id, self._state.pack(int(state)))

@@ -134,6 +134,8 @@ class AdaptivePremotor:
         return float(self.weights[cell]) * self.memory.activity(now_s)
 
     def burst_s(self, now_s: float) -> float:
+        if self.memory.cell is None:  # nothing held (most ticks): base + 0.0, without the calls (the base
+            return self.base_burst_s  # is a positive burst length, so adding 0.0 changes no bit of it)
         return self.base_burst_s + self.modulation_s(now_s)
 
     def gated_weight(self) -> float:

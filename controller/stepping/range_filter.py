@@ -18,9 +18,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 
 from controller.settings.schema import check_settings, setting
+from controller.stepping.filterpy_kf import KalmanFilter  # filterpy's class, without scipy at import (see there)
 
 
 @dataclass(frozen=True)

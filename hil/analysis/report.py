@@ -15,18 +15,14 @@ import statistics
 from pathlib import Path
 from typing import Any, Sequence
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from controller.atomic import write_text_atomic  # noqa: E402
-from controller.errors import InputError, check_stamp  # noqa: E402
-from hil.analysis.figures import _save, success_curves  # noqa: E402  (one way to write PNG + SVG; one curve plot)
-from hil.analysis.metrics import read_metrics  # noqa: E402
-from hil.experiments.methods import resolve  # noqa: E402
-from hil.experiments.sweep import cells_from_json, height_tag, read_sweep_config  # noqa: E402
+from controller.atomic import write_text_atomic
+from controller.errors import InputError, check_stamp
+from hil.analysis.figures import _save, subplots, success_curves  # one way to draw and write PNG + SVG; one curve plot
+from hil.analysis.metrics import read_metrics
+from hil.experiments.methods import resolve
+from hil.experiments.sweep import cells_from_json, height_tag, read_sweep_config
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +131,7 @@ def criterion_bars(table: Sequence[dict[str, Any]], out: Path, name: str = "crit
     heights = list(dict.fromkeys(height_label(e["obstacle_height_m"]) for e in table))
     cell = {(height_label(e["obstacle_height_m"]), e["method"]): e for e in table}
     data: dict[str, Any] = {"methods": methods, "heights": heights}
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    fig, axes = subplots(1, 2, figsize=(10, 3.6))
     width = 0.8 / len(heights)
     x = np.arange(len(methods))
     for ax, key, ylabel in ((axes[0], "trials_to_criterion_mean", "trials to criterion (mean of seeds reaching it)"),

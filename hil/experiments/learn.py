@@ -204,10 +204,12 @@ class LearningRun:
             trace = {"t_s": [], "foot_x_m": [], "foot_z_m": [], "burst_s": [], "contact": []}
         every = max(1, int(round(ls.config.rig.physics_hz / c.trace_rate_hz))) if trace else 0
         n = 0
-        while plant.carriage_x_m < far + c.past_obstacle_m:
-            ls.step()
-            self.tracker.update()
-            if not contact and plant.carriage_x_m > near - 1.0:
+        # hot path (once a physics step): bound methods and the two bounds hoisted out of the loop
+        step, track, end_m, watch_m = ls.step, self.tracker.update, far + c.past_obstacle_m, near - 1.0
+        while plant.carriage_x_m < end_m:
+            step()
+            track()
+            if not contact and plant.carriage_x_m > watch_m:
                 contact = plant.obstacle_contact()
             if trace is not None and n % every == 0:
                 fx, fz = plant.foot_position()

@@ -112,3 +112,18 @@ def test_the_simulated_odrive_reports_the_model_and_sends_it_cyclically():
     fet, motor = C.codec("Get_Temperature").unpack(frames["Get_Temperature"].data)
     assert motor > 90.0 and fet > 90.0  # 200 s at 95 C ambient, tau 60 s and 20 s
     assert DriverConfig(node_id=3).health_period_s == 0.0  # ODrive's default: not sent
+
+
+def test_new_params_apply_from_the_next_step():
+    hot = ThermalParams(motor_thermal_resistance_k_per_w=5.0, fet_resistance_ohm=0.05, fet_idle_loss_w=2.0,
+                        fet_thermal_resistance_k_per_w=6.0, motor_time_constant_s=10.0, fet_time_constant_s=5.0)
+    changed, fresh, default = held(10.0), held(10.0, hot), held(10.0)
+    changed.step(0.01)
+    changed.params = hot
+    changed.motor_c = changed.fet_c = 25.0
+    for _ in range(50):
+        for model in (changed, fresh, default):
+            model.step(0.01)
+    assert changed.params is hot
+    assert (changed.motor_c, changed.fet_c) == (fresh.motor_c, fresh.fet_c)
+    assert fresh.fet_c > default.fet_c + 1.0 and fresh.motor_c > default.motor_c + 0.5  # (hot heats more)

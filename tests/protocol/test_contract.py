@@ -216,6 +216,44 @@ def test_a_fresh_contract_codes_every_message_exactly_as_cantools_does():
                 codec.encode(**{s.name: _sample(s, 0) for s in signals[:-1]})
 
 
+def test_an_int_for_an_unscaled_signal_packs_as_the_same_value_as_a_float():
+    # pack's hot path takes an int for an unscaled integer signal as its raw value; a float (and
+    # a bool) goes through (v - offset) / scale and round: both must give the same bytes and refuse
+    # the same values.
+    for codec in contract.by_name.values():
+        if not codec.compiled or codec.message.signals == []:
+            continue
+        signals = sorted(codec.message.signals, key=lambda s: s.start)
+        exact = [i for i, s in enumerate(signals) if not s.is_float and s.scale == 1 and s.offset == 0]
+        for k in range(4):
+            ints = [int(_sample(s, k)) if i in exact else _sample(s, k) for i, s in enumerate(signals)]
+            floats = [float(v) if i in exact else v for i, v in enumerate(ints)]
+            assert codec.pack(*ints) == codec.pack(*floats), codec.name
+        for i in exact:
+            s = signals[i]
+            hi = (1 << (s.length - 1)) - 1 if s.is_signed else (1 << s.length) - 1
+            for value in (hi + 1, float(hi + 1)):
+                values = [_sample(x, 0) for x in signals]
+                values[i] = value
+                with pytest.raises(ValueError, match=rf"^{codec.name}: value {value!r} outside the signal's raw range"):
+                    codec.pack(*values)
+    assert contract.codec("SB_Contacts").pack(True, False, 7) == contract.codec("SB_Contacts").pack(1, 0, 7)
+
+
+def test_pack_floats_is_pack_for_the_messages_of_floats_only():
+    with_it = set()
+    for codec in contract.by_name.values():
+        signals = codec.message.signals
+        if codec.pack_floats is None:
+            assert not (codec.compiled and signals and all(s.is_float for s in signals)), codec.name
+            continue
+        with_it.add(codec.name)
+        values = [(-1.0) ** k * (k + 0.1) for k in range(len(signals))]
+        assert codec.pack_floats(*values) == codec.pack(*values), codec.name
+    assert {"Get_Encoder_Estimates", "Set_Input_Vel", "Get_Iq"} <= with_it
+    assert "Set_Input_Pos" not in with_it and "Heartbeat" not in with_it
+
+
 def test_which_codecs_are_compiled_to_a_struct():
     import cantools
 

@@ -369,3 +369,40 @@ def test_an_sdo_write_of_a_float_beyond_float32_is_a_value_error_naming_it():
 
     with pytest.raises(ValueError, match="does not fit a float32 SDO value"):
         hip().sdo_write_frame(WATCHDOG_TIMEOUT, 1e39)
+
+
+# --------------------------------------------------------------------------- the payload's fast path
+def _reference_pos_payload(link: AxisLink, q_rad: float, qd_rad_s: float) -> bytes:
+    """Set_Input_Pos's payload as pos_frame built it before its fast path: the codec packs it all."""
+    q = link.clamp(q_rad)
+    link.last_target_rad = q
+    rev_per_rad = link.config.direction * link.config.gear_ratio / (2.0 * math.pi)
+    vel_ff = qd_rad_s * rev_per_rad if math.isfinite(qd_rad_s) else 0.0
+    vel_ff = 32.0 if vel_ff > 32.0 else (-32.0 if vel_ff < -32.0 else vel_ff)
+    rev = link.config.zero_offset_rev + q * rev_per_rad
+    lo, hi = link.pos_bounds_rev
+    rev = lo if rev < lo else (hi if rev > hi else rev)
+    return POS.pack(rev, vel_ff, 0.0)
+
+
+@pytest.mark.parametrize("cfg", [
+    *default_axes(),
+    AxisConfig("hip", node_id=0, min_rad=0.1, max_rad=0.3, gear_ratio=9.0, zero_offset_rev=-17.3),
+    AxisConfig("knee", node_id=1, min_rad=-6.0, max_rad=6.0, gear_ratio=101.0, direction=-1, zero_offset_rev=999.0),
+], ids=["hip", "knee", "offset", "reversed"])
+def test_pos_frame_sends_the_bytes_the_codec_packs(cfg):
+    """pos_frame packs a frame without feed-forward as float32 + a fixed tail: byte for byte what
+    the codec packs, for targets inside, outside and at the limits, NaN, and with feed-forward."""
+    fast, ref = AxisLink(cfg, C), AxisLink(cfg, C)
+    assert fast._pos_tail_still is not None  # the DBC's layout takes the fast path
+    rng = np.random.default_rng(7)
+    span = cfg.max_rad - cfg.min_rad
+    targets = [*rng.uniform(cfg.min_rad - span, cfg.max_rad + span, 3000), cfg.min_rad, cfg.max_rad, 0.0, -0.0,
+               math.nan, math.inf, -math.inf, math.nextafter(cfg.max_rad, math.inf)]
+    for q in targets:
+        for qd in (0.0, -0.0, 0.3, -1e9, math.nan):
+            frame = fast.pos_frame(q, qd)
+            assert bytes(frame.data) == _reference_pos_payload(ref, q, qd), (q, qd)
+            assert frame.arbitration_id == fast.pos_id and frame.dlc == POS.dlc
+            assert fast.last_target_rad == ref.last_target_rad
+    assert fast.clamped_targets == ref.clamped_targets > 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import random
 
 import pytest
 
@@ -76,3 +77,58 @@ def test_unreachable_targets_give_a_valid_pose_along_the_same_direction():
     x, z = forward(g, hip, knee)
     assert math.isfinite(hip) and math.isfinite(knee)
     assert x == pytest.approx(0.0, abs=1e-9) and z == pytest.approx(-0.4995, abs=1e-3)
+
+
+class _ReferenceRing(RingOscillator):
+    """The ring's step and clip as written before their 500 Hz tuning (attribute reads, _duration_s,
+    min/max), to compare with bit for bit."""
+
+    def set_burst_s(self, burst_s: float) -> float:
+        c = self.config
+        self.burst_s = min(c.burst_max_s, max(c.burst_min_s, burst_s))
+        return self.burst_s
+
+    def step(self, dt_s: float):
+        onset = self._pending_onset
+        self._pending_onset = False
+        remaining = dt_s
+        for _ in range(self.n_units):
+            rate = 1.0 / self._duration_s(self.active)
+            need = (1.0 - self.adaptation) / rate
+            if remaining < need:
+                self.adaptation += remaining * rate
+                break
+            remaining -= need
+            self.active = (self.active + 1) % self.n_units
+            self.adaptation = 0.0
+            if self.active == 0:
+                self.step_index += 1
+                onset = True
+        tau = self.config.activation_tau_s
+        k = 1.0 if tau <= 0.0 else min(1.0, dt_s / tau)
+        for i in range(self.n_units):
+            target = 1.0 if i == self.active else 0.0
+            self.rates[i] += k * (target - self.rates[i])
+        flexing = self.active >= self.n_half
+        phase = ((self.active % self.n_half) + self.adaptation) / self.n_half
+        drive = self.amplitude * sum(self.rates[self.n_half :])
+        return (onset, flexing, phase, drive, self.step_index)
+
+
+@pytest.mark.parametrize("config", [CpgConfig(), CpgConfig(units_per_half=3, activation_tau_s=0.001)],
+                         ids=["default", "three-units-fast"])
+def test_step_and_clip_are_the_reference_bit_for_bit(config):
+    """Random tick lengths (late and zero ones too), burst requests (NaN and infinite too) and
+    amplitudes: every output and the state equal the reference's exactly (==, not approx)."""
+    rng = random.Random(11)
+    ring, ref = RingOscillator(config), _ReferenceRing(config)
+    for i in range(20000):
+        dt = rng.choice([0.002, 0.002, 0.002, 0.0, 0.0041, rng.uniform(0.0, 0.5)])
+        out = ring.step(dt)
+        assert tuple(out) == ref.step(dt)
+        burst = rng.choice([rng.uniform(0.0, 1.0), math.nan, math.inf, -math.inf, 0.15, 0.6])
+        assert ring.set_burst_s(burst) == ref.set_burst_s(burst)
+        ring.amplitude = ref.amplitude = rng.choice([1.0, 1.9])
+        assert (ring.active, ring.adaptation, ring.rates, ring.burst_s) == (ref.active, ref.adaptation, ref.rates,
+                                                                         ref.burst_s)
+    assert ring.step_index > 100

@@ -40,6 +40,16 @@ def test_burst_is_base_plus_weighted_memory_and_relaxes_to_base():
     assert p.burst_s(2.0) == 0.3 and p.gated_weight() == 0.0
 
 
+def test_burst_is_exactly_base_plus_modulation_gated_or_not():
+    """burst_s skips the modulation's calls when nothing is held: still exactly base + modulation_s."""
+    p = AdaptivePremotor(4, 0.3, weights=np.array([0.0, 0.1, -0.2, 0.05]))
+    for t, cell in [(0.0, None), (0.5, 1), (0.9, None), (1.0, 2), (1.7, 0), (2.2, 3), (2.3, None)]:
+        p.on_step_onset(t, cell)
+        for now in (t, t + 0.013, t + 0.4):
+            assert p.burst_s(now) == p.base_burst_s + p.modulation_s(now)
+            assert (p.burst_s(now) == 0.3) == (cell is None or cell == 0)
+
+
 def test_extension_lengthens_placement_shortens_in_proportion_to_the_traces():
     cfg = LearnerConfig(learning_rate_s=0.1, trace_tau_s=1.0)
     p = AdaptivePremotor(10, 0.3, cfg)

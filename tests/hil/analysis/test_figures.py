@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
 import numpy as np
 import pytest
 
@@ -257,3 +263,58 @@ def test_learn_records_the_first_and_last_trial_for_the_figures(tmp_path):
     found = [trace["foot_x_m"][i] for i in figures.trace_touchdowns(trace, 0.08, 0.10)]
     for x in trials[-1]["footfalls_m"][1:]:
         assert min(abs(x - f) for f in found) < 0.02
+
+
+# -- drawn without pyplot, the same files as pyplot's -----------------------------------------------
+
+
+def _python(code: str, **env: str) -> str:
+    done = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
+                          timeout=120, env={**os.environ, **env})
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip().splitlines()[-1]
+
+
+def test_figures_and_the_report_draw_without_importing_pyplot(tmp_path):
+    seen = json.loads(_python(f"""
+        import json, sys
+        from pathlib import Path
+        from hil.analysis import figures, report
+        figures.learning_curve([{{"success": True}}, {{"success": False}}], Path({str(tmp_path)!r}))
+        print(json.dumps(sorted(m for m in sys.modules if m.startswith("matplotlib.pyplot"))))
+    """))
+    assert seen == []
+    assert (tmp_path / "learning_curve.png").stat().st_size > 1000
+
+
+def test_subplots_and_save_write_the_bytes_pyplot_writes(tmp_path):
+    # the same drawing through pyplot (Agg) and through figures.subplots/_save; fixed SVG ids and date
+    same = json.loads(_python(f"""
+        import json
+        from pathlib import Path
+        import matplotlib
+        matplotlib.use("Agg")
+        matplotlib.rcParams["svg.hashsalt"] = "test"
+        import matplotlib.pyplot as plt
+        from hil.analysis import figures
+
+        def draw(fig, axes):
+            axes[0].plot([1, 2, 3], [0.2, 0.9, 0.5], "o-", label="a line")
+            axes[1].bar([0.5, 1.5], [1.0, -0.5], width=0.8, color="C1")
+            axes[0].set(xlabel="x [m]", title="pyplot or not")
+            axes[0].legend(loc="lower right")
+            fig.suptitle("the same figure")
+
+        out = Path({str(tmp_path)!r})
+        fig, axes = plt.subplots(1, 2, figsize=(6, 3.2), sharey=True)
+        draw(fig, axes)
+        for ext in ("png", "svg"):
+            fig.savefig(out / f"pyplot.{{ext}}", dpi=120, bbox_inches="tight")
+        fig, axes = figures.subplots(1, 2, figsize=(6, 3.2), sharey=True)
+        draw(fig, axes)
+        figures._save(fig, out, "oo")
+        print(json.dumps({{ext: (out / f"pyplot.{{ext}}").read_bytes() == (out / f"oo.{{ext}}").read_bytes()
+                          for ext in ("png", "svg")}}))
+    """, SOURCE_DATE_EPOCH="0"))
+    assert same == {"png": True, "svg": True}
+    assert (tmp_path / "oo.png").stat().st_size > 1000
