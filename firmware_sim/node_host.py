@@ -92,6 +92,7 @@ class NodeHost:
             if msg.is_extended_id or msg.is_error_frame:
                 stats["unknown"] += 1
             else:
+                replies: Sequence[can.Message]
                 node = by_id.get(msg.arbitration_id >> 5)
                 if node is None:
                     stats["foreign"] += 1

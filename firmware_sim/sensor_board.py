@@ -44,6 +44,7 @@ import numpy as np
 
 from protocol.contract import CMD_ID_MASK, SENSOR_BOARD_NODE_ID, BusContract, arbitration_id
 from protocol.frame import data_frame
+from protocol.compiled import interpreted
 
 BOARD_STATE_RUNNING = 1
 _SCHEDULE_EPS_S = 1e-9
@@ -68,6 +69,7 @@ class SensorSource(Protocol):
         ...
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class SensorBoardConfig:
     """Configuration of the sensor board.

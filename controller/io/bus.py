@@ -73,6 +73,7 @@ import can
 from controller.io.axis import AxisLink
 from controller.io.sensors import SensorLink
 from protocol import BusContract, arbitration_id
+from protocol.compiled import interpreted
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +121,7 @@ def payload_reader(codec) -> Callable[[bytes | bytearray], tuple]:
     return reader.unpack_from if reader.size == codec.dlc else codec.unpack
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class ReopenPolicy:
     """How a failed bus is reopened (only with a ``reopen`` factory).
