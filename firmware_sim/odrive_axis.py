@@ -118,7 +118,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import can
 
@@ -536,7 +536,8 @@ class SimOdriveAxis:
             self.stats["internal_errors"] += 1
             return []
 
-    def _handle(self, msg: can.Message, now_s: float) -> list[can.Message]:
+    def _handle(self, msg: Any, now_s: float) -> list[can.Message]:
+        # msg: Any, read without mypyc's type checks: a node must survive any frame (a numpy.bool flag too)
         if msg.is_extended_id or msg.is_error_frame:
             self.stats["unknown"] += 1
             return []

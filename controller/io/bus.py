@@ -66,7 +66,7 @@ import math
 import struct
 from collections import Counter
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import can
 
@@ -294,6 +294,7 @@ class BusIO:
         table = self._table
         rx = self.rx
         dropped = self.dropped
+        msg: Any  # read without mypyc's type checks: the controller must survive any frame (a numpy.bool flag too)
         while True:
             try:
                 msg = recv(timeout=0.0)
