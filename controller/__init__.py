@@ -19,3 +19,8 @@ May import: the standard library, numpy, filterpy, python-can, and ``protocol`` 
 3.10 only, ``tomli``: the standard library's ``tomllib`` before 3.11). Never imports
 ``firmware_sim`` or ``hil``.
 """
+
+# first, before any hot module: ELEGANT_STEPPING_PURE_PYTHON=1 runs them as pure Python (protocol.compiled)
+from protocol.compiled import install_pure_python_finder as _install_pure_python_finder
+
+_install_pure_python_finder()

@@ -57,6 +57,7 @@ from __future__ import annotations
 import enum
 import logging
 import math
+from typing import ClassVar
 
 from controller.io.axis import AxisLink
 from controller.io.health import HealthConfig, health_fault
@@ -93,7 +94,7 @@ def error_text(bits: int) -> str:
 
 def error_names(bits: int) -> list[str]:
     """The names of ODrive 0.6 error bits set in ``bits`` (bits it does not define: "0x..")."""
-    names = [e.name for e in AxisError if e.value and bits & e.value]
+    names: list[str] = [e.name for e in AxisError if e.value and bits & e.value]  # type: ignore[misc]  # a member with a value has a name
     unknown = bits & ~_KNOWN_ERRORS
     if unknown:
         names.append(f"{unknown:#x}")
@@ -104,7 +105,7 @@ _KNOWN_ERRORS = int(sum(e.value for e in AxisError))
 
 
 class Supervisor:
-    ARM_RETRY_S = 0.5
+    ARM_RETRY_S: ClassVar[float] = 0.5
 
     def __init__(self, axes: list[AxisLink], sensors: SensorLink, silence_timeout_s: float,
                  bringup_timeout_s: float, stale_heartbeat_s: float = math.inf,
@@ -242,10 +243,10 @@ class Supervisor:
                     return
 
     # -- the drivers' watchdog timeout, written with the arming frames and read back ---------------
-    SDO_REPLY_TIMEOUT_S = 0.5
+    SDO_REPLY_TIMEOUT_S: ClassVar[float] = 0.5
     """The write and read-back of the watchdog timeout must agree within this long of the first
     write, else a FAULT [s]."""
-    SDO_RETRY_S = 0.1
+    SDO_RETRY_S: ClassVar[float] = 0.1
     """No read-back this long after the last exchange, or one with another value (the write may
     have been lost on the bus): write and read again [s]."""
 

@@ -9,3 +9,8 @@ connects the nodes to a python-can bus; :mod:`firmware_sim.leg` assembles the wh
 May import: the standard library, numpy, pybullet, python-can, ``protocol`` and ``urdf``.
 Never imports ``controller`` or ``hil``.
 """
+
+# first, before any hot module: ELEGANT_STEPPING_PURE_PYTHON=1 runs them as pure Python (protocol.compiled)
+from protocol.compiled import install_pure_python_finder as _install_pure_python_finder
+
+_install_pure_python_finder()

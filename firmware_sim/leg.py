@@ -19,8 +19,10 @@ from firmware_sim.odrive_axis import DriverConfig, SimOdriveAxis
 from firmware_sim.plant import RigConfig, RigPlant
 from firmware_sim.sensor_board import SensorBoard, SensorBoardConfig
 from firmware_sim.thermal import ThermalModel, ThermalParams
+from protocol.compiled import interpreted
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class LegHardware:
     """How the leg is built and wired.

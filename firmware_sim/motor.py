@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from typing import Protocol
+from protocol.compiled import interpreted
 
 TWO_PI = 2.0 * math.pi
 
@@ -33,6 +34,7 @@ class JointPlant(Protocol):
         ...
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class Transmission:
     """Gearbox between the motor shaft and the joint.
@@ -75,6 +77,7 @@ class Transmission:
         return tau_motor_nm * self.gear_ratio * self.direction
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class MotorParams:
     """Electrical and torque parameters of a BLDC motor (defaults: ODrive D5065-like, KV 100).

@@ -18,7 +18,7 @@ dicts.
 
 from __future__ import annotations
 
-from typing import Protocol, Sequence
+from typing import Any, Protocol, Sequence
 
 import can
 
@@ -80,6 +80,7 @@ class NodeHost:
         by_id = self._by_id
         stats = self.stats
         count = 0
+        msg: Any  # read without mypyc's type checks: a node must survive any frame (a numpy.bool flag too)
         while True:
             try:
                 msg = recv(0)
@@ -92,6 +93,7 @@ class NodeHost:
             if msg.is_extended_id or msg.is_error_frame:
                 stats["unknown"] += 1
             else:
+                replies: Sequence[can.Message]
                 node = by_id.get(msg.arbitration_id >> 5)
                 if node is None:
                     stats["foreign"] += 1

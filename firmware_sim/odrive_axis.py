@@ -118,7 +118,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import can
 
@@ -139,6 +139,7 @@ from protocol.endpoints import BY_ID as ENDPOINTS_BY_ID
 from protocol.endpoints import SDO_OPCODE_READ, SDO_OPCODE_WRITE, Endpoint
 from protocol.frame import data_frame
 from protocol.odrive import AxisError, AxisState, Cmd, ControlMode, InputMode, ProcedureResult, RebootAction
+from protocol.compiled import interpreted
 
 PROTOCOL_VERSION = 2
 """Get_Version.Protocol_Version reported by firmware 0.6."""
@@ -196,6 +197,7 @@ def _finite(*values: float) -> bool:
     return True
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class DriverConfig:
     """Configuration of one simulated ODrive axis (motor-side units).
@@ -458,7 +460,7 @@ class SimOdriveAxis:
         self.traj_accel_limit = s.traj_accel_limit
         self.traj_decel_limit = s.traj_decel_limit
         self.traj_inertia = s.traj_inertia
-        self._traj = None
+        self._traj: TrapezoidalTrajectory | None = None
         self._traj_t0_s = 0.0
         self.trajectory_done = True
         self.state = AxisState.IDLE
@@ -534,7 +536,8 @@ class SimOdriveAxis:
             self.stats["internal_errors"] += 1
             return []
 
-    def _handle(self, msg: can.Message, now_s: float) -> list[can.Message]:
+    def _handle(self, msg: Any, now_s: float) -> list[can.Message]:
+        # msg: Any, read without mypyc's type checks: a node must survive any frame (a numpy.bool flag too)
         if msg.is_extended_id or msg.is_error_frame:
             self.stats["unknown"] += 1
             return []

@@ -37,13 +37,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import can
 import numpy as np
 
 from protocol.contract import CMD_ID_MASK, SENSOR_BOARD_NODE_ID, BusContract, arbitration_id
 from protocol.frame import data_frame
+from protocol.compiled import interpreted
 
 BOARD_STATE_RUNNING = 1
 _SCHEDULE_EPS_S = 1e-9
@@ -68,6 +69,7 @@ class SensorSource(Protocol):
         ...
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class SensorBoardConfig:
     """Configuration of the sensor board.
@@ -290,7 +292,8 @@ class SensorBoard:
             self.stats["internal_errors"] += 1
             return []
 
-    def _handle(self, msg: can.Message, now_s: float) -> list[can.Message]:
+    def _handle(self, msg: Any, now_s: float) -> list[can.Message]:
+        # msg: Any, read without mypyc's type checks: a node must survive any frame (a numpy.bool flag too)
         if msg.is_extended_id or msg.is_error_frame:
             self.stats["unknown"] += 1
             return []

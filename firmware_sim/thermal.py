@@ -29,8 +29,10 @@ import math
 from dataclasses import dataclass
 
 from firmware_sim.motor import MotorJoint
+from protocol.compiled import interpreted
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class ThermalParams:
     """A driver's thermal and supply model (the simulated leg's defaults, D5065 on an ODrive S1-class board).

@@ -14,3 +14,8 @@ May import everything: ``controller``, ``firmware_sim``, ``protocol``, ``urdf``,
 and ``research`` extras (pybullet; matplotlib, tqdm, dask), the latter inside the functions that
 need them. It is the only package that sees both sides of the bus; nothing imports it.
 """
+
+# first, before any hot module: ELEGANT_STEPPING_PURE_PYTHON=1 runs them as pure Python (protocol.compiled)
+from protocol.compiled import install_pure_python_finder as _install_pure_python_finder
+
+_install_pure_python_finder()

@@ -11,6 +11,11 @@ May import: the standard library, numpy-free code only, ``cantools``. Never impo
 ``controller``, ``firmware_sim`` or ``hil``; both sides of the bus import this package.
 """
 
+# first, before any hot module: ELEGANT_STEPPING_PURE_PYTHON=1 runs them as pure Python (protocol.compiled)
+from protocol.compiled import install_pure_python_finder as _install_pure_python_finder
+
+_install_pure_python_finder()
+
 from protocol.contract import (
     SENSOR_BOARD_NODE_ID,
     SHORT_FRAMES,

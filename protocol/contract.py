@@ -79,9 +79,10 @@ _F32 = struct.Struct("<f")
 _U32 = struct.Struct("<I")
 
 
-def sdo_value_bits(value: float) -> int:
+def sdo_value_bits(value: object) -> int:
     """RxSdo/TxSdo ``Value`` (the raw uint32 of bytes 4..7) carrying ``value`` as a float32.
-    Raises ``ValueError`` for a value outside float32's range (NaN and infinities pass)."""
+    Raises ``ValueError`` for a value outside float32's range (NaN and infinities pass) and for
+    anything not a number (typed ``object``, so that compiled it raises that, not a ``TypeError``)."""
     try:
         return _U32.unpack(_F32.pack(value))[0]
     except (OverflowError, struct.error) as exc:
@@ -139,7 +140,7 @@ class MessageCodec:
         self._identity = all(scale == 1.0 and offset == 0.0 for scale, offset, _ in self._scales)
         self._float_only = all(is_float for _, _, is_float in self._scales)
         self._int_fields = tuple(
-            (i, scale, offset, *limits)
+            (i, scale, offset, *limits)  # type: ignore[misc]  # not None: integer fields only
             for i, ((scale, offset, is_float), limits) in enumerate(zip(self._scales, self._int_limits))
             if not is_float
         )
@@ -162,7 +163,7 @@ class MessageCodec:
         wrong count raises ``struct.error``); None for any other message."""
 
     @staticmethod
-    def _raw_limits(sig) -> tuple[float, float] | None:
+    def _raw_limits(sig) -> tuple[int, int] | None:
         if sig.is_float:
             return None
         if sig.is_signed:
@@ -204,13 +205,14 @@ class MessageCodec:
         isfinite = math.isfinite
         for i, scale, offset, lo, hi, exact in self._pack_int_fields:
             value = values[i]
+            r: int
             if exact and type(value) is int:
                 r = value  # hot path: an int for an unscaled signal (see _pack_int_fields)
             else:
-                r = (value - offset) / scale
-                if not isfinite(r):
+                scaled = (value - offset) / scale  # (its own name: r holds an int, also compiled)
+                if not isfinite(scaled):
                     raise ValueError(f"{self.name}: non-finite value {value!r} for an integer signal")
-                r = round(r)
+                r = round(scaled)
             if r < lo or r > hi:
                 raise ValueError(f"{self.name}: value {value!r} outside the signal's raw range {(lo, hi)}")
             raw[i] = r
@@ -232,7 +234,7 @@ class MessageCodec:
         unpack_raw = self._unpack_raw
         if unpack_raw is None:
             decoded = self.message.decode(bytes(data[: self.dlc]), decode_choices=False, scaling=True)
-            return tuple(decoded[n] for n in self.signal_names)
+            return tuple(decoded[n] for n in self.signal_names)  # type: ignore[call-overload,misc]  # a dict
         raw = unpack_raw(data)
         if self._identity:
             return raw
@@ -301,7 +303,7 @@ class BusContract:
     @classmethod
     @functools.lru_cache(maxsize=4)
     def load(cls, path: str | None = None) -> "BusContract":
-        return cls(cantools.database.load_file(str(path or DBC_PATH)))
+        return cls(cantools.database.load_file(str(path or DBC_PATH)))  # type: ignore[arg-type]  # a .dbc
 
     def codec(self, name: str) -> MessageCodec:
         try:

@@ -35,6 +35,7 @@ from protocol import SENSOR_BOARD_NODE_ID, AxisError, AxisState, BusContract, Co
 from protocol.contract import sdo_bits_value, sdo_value_bits
 from protocol.endpoints import BY_ID as ENDPOINTS_BY_ID
 from protocol.endpoints import SDO_OPCODE_READ, SDO_OPCODE_WRITE, Endpoint
+from protocol.compiled import interpreted
 
 _F32 = struct.Struct("<f")
 _U32 = struct.Struct("<I")
@@ -50,6 +51,7 @@ MAX_BUS_VOLTAGE_V = 100.0
 """A Get_Bus_Voltage_Current reading above this is a corrupted frame (ODrive S1/Pro: 12-48 V)."""
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class AxisConfig:
     """One joint driven by one ODrive axis (``name``: "hip" or "knee"). Each other field's unit,
@@ -93,6 +95,7 @@ class AxisConfig:
         return vel_rev_s * 2.0 * math.pi / (self.direction * self.gear_ratio)
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class FeedbackLimits:
     """What a plausible encoder reading is (anything else is a corrupted frame, dropped).

@@ -66,13 +66,14 @@ import math
 import struct
 from collections import Counter
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import can
 
 from controller.io.axis import AxisLink
 from controller.io.sensors import SensorLink
 from protocol import BusContract, arbitration_id
+from protocol.compiled import interpreted
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +121,7 @@ def payload_reader(codec) -> Callable[[bytes | bytearray], tuple]:
     return reader.unpack_from if reader.size == codec.dlc else codec.unpack
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class ReopenPolicy:
     """How a failed bus is reopened (only with a ``reopen`` factory).
@@ -292,6 +294,7 @@ class BusIO:
         table = self._table
         rx = self.rx
         dropped = self.dropped
+        msg: Any  # read without mypyc's type checks: the controller must survive any frame (a numpy.bool flag too)
         while True:
             try:
                 msg = recv(timeout=0.0)

@@ -25,8 +25,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from controller.settings.schema import check_settings, setting
+from protocol.compiled import interpreted
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class CpgConfig:
     """The ring oscillator. The premotor module's burst is clipped to ``[burst_min_s, burst_max_s]``."""

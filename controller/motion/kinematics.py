@@ -10,12 +10,14 @@ import math
 from dataclasses import dataclass
 
 from controller.settings.schema import check_settings, setting
+from protocol.compiled import interpreted
 
 REACH = 0.999
 """The farthest :func:`inverse` stretches the leg, as a fraction of thigh + shank (a fully
 straight knee is a singular pose)."""
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class LegGeometry:
     """Leg dimensions the controller's kinematics assume."""

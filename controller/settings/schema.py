@@ -24,8 +24,11 @@ from typing import Any, Callable
 REQUIRED: Any = dataclasses.MISSING
 """The default of a field that has none (given on every creation): ``setting(REQUIRED, ...)``."""
 
-_KINDS = {"float": "float", "int": "int", "bool": "bool", "str": "str", "tuple[float, ...]": "floats"}
-"""A field's annotation -> its :attr:`Setting.kind`."""
+_KINDS = {"float": "float", "int": "int", "bool": "bool", "str": "str", "tuple[float, ...]": "floats", "tuple": "floats"}
+"""A field's annotation -> its :attr:`Setting.kind`. ``"tuple"``: how a ``tuple[float, ...]`` field
+reads in a module compiled with mypyc (:mod:`protocol.compiled`), which keeps only the bare type;
+the one tuple setting (``HeightEstimatorConfig.beam_heights_m``) is of floats; a tuple of anything
+else would need its own entry here."""
 
 
 # ----------------------------------------------------------------------------- values in messages

@@ -12,8 +12,10 @@ import math
 from dataclasses import dataclass
 
 from controller.settings.schema import check_settings, setting
+from protocol.compiled import interpreted
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class RangeEncoderConfig:
     """The cells. Narrower cells learn the same map but visit each cell less often, so cells met

@@ -26,6 +26,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from controller.settings.schema import check_settings, setting
+from protocol.compiled import interpreted
 
 
 def _increasing(heights: tuple[float, ...]) -> str | None:
@@ -34,6 +35,7 @@ def _increasing(heights: tuple[float, ...]) -> str | None:
     return None
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class HeightEstimatorConfig:
     """The estimator.

@@ -28,8 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.settings.schema import check_settings, setting
+from protocol.compiled import interpreted
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class LearnerConfig:
     """Memory, traces and learning rule. ``learning`` False is the no-learning baseline.

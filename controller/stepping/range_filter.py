@@ -21,8 +21,10 @@ import numpy as np
 
 from controller.settings.schema import check_settings, setting
 from controller.stepping.filterpy_kf import KalmanFilter  # filterpy's class, without scipy at import (see there)
+from protocol.compiled import interpreted
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class RangeFilterConfig:
     """The filter. The process noise is small: the sensor rides the carriage, which runs at

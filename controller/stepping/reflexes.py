@@ -29,8 +29,10 @@ from typing import Callable
 
 from controller.motion.cpg import CpgOutput
 from controller.settings.schema import check_settings, setting
+from protocol.compiled import interpreted
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class ReflexConfig:
     """The reflexes. The default ``refractory_s`` is about a step cycle: a collision and what

@@ -152,6 +152,7 @@ def run_bench(seconds: float = 10.0, seed: int = 0, learn_trials: int = 10,
     """All figures; ``hil_seconds``: also the HIL figures (that many seconds of walking);
     ``floor_pairs``: interleaved rounds of the stack against its physics floor (at least 3)."""
     from hil.bench.socketcan import hil_availability, run_hil_bench
+    from protocol.compiled import compiled_modules
 
     floor = bench_physics_floor(seconds, seed, floor_pairs)
     lock = bench_lockstep(seconds, seed)
@@ -168,6 +169,8 @@ def run_bench(seconds: float = 10.0, seed: int = 0, learn_trials: int = 10,
         "hil": hil(),
         "detail": {"lockstep": {k: v for k, v in lock.items() if k != "tick_cost_us"}, "physics_floor": floor["detail"]},
         "machine": {"python": platform.python_version(), "platform": platform.platform(), "cpus": _cpus()},
+        # which hot modules ran compiled (mypyc, protocol.compiled): the figures depend on it
+        "compiled": compiled_modules(),
     }
 
 

@@ -79,9 +79,27 @@ def test_unreachable_targets_give_a_valid_pose_along_the_same_direction():
     assert x == pytest.approx(0.0, abs=1e-9) and z == pytest.approx(-0.4995, abs=1e-3)
 
 
-class _ReferenceRing(RingOscillator):
-    """The ring's step and clip as written before their 500 Hz tuning (attribute reads, _duration_s,
-    min/max), to compare with bit for bit."""
+class _ReferenceRing:
+    """The ring's state, step and clip as written before their 500 Hz tuning (attribute reads,
+    _duration_s, min/max), to compare with bit for bit. A class of its own, not a subclass of
+    RingOscillator: a compiled (mypyc) class cannot be subclassed by an interpreted one."""
+
+    def __init__(self, config: CpgConfig) -> None:
+        self.config = config
+        self.n_half = config.units_per_half
+        self.n_units = 2 * self.n_half
+        self.burst_s = config.burst_s
+        self.amplitude = 1.0
+        self.active = 0
+        self.adaptation = 0.0
+        self.rates = [0.0] * self.n_units
+        self.rates[0] = 1.0
+        self.step_index = 0
+        self._pending_onset = True
+
+    def _duration_s(self, unit: int) -> float:
+        half = self.config.stance_s if unit < self.n_half else self.burst_s
+        return half / self.n_half
 
     def set_burst_s(self, burst_s: float) -> float:
         c = self.config

@@ -17,6 +17,7 @@ import pytest
 import hil.experiments.learn as learn
 import hil.experiments.walk as walk
 from controller.supervisor import Phase
+from hil.analysis.records import first_difference
 from hil.faults.model import FaultSpec
 from hil.lockstep.harness import Lockstep, LockstepConfig
 from controller.daemon.simclock import SimClockBus, run_period
@@ -222,9 +223,12 @@ def test_a_plant_and_a_controller_on_separate_ends_give_the_lockstep_run():
     remote = holder[0]
     with Lockstep(cfg) as ls:
         _run(ls, 4.0)
-        want = [(s.onset_s, s.cell, s.burst_s) for s in ls.loop.stats.steps]
+        want = [[s.onset_s, s.cell, s.burst_s] for s in ls.loop.stats.steps]
         want_ticks, want_phase = ls.loop.stats.ticks, ls.loop.phase
-    assert [(s.onset_s, s.cell, s.burst_s) for s in remote.stats.steps] == want and want
+    # compared as records (NaN equal to NaN): == on tuples holding NaN holds only for the same float
+    # object, which pure Python's step records happen to share and compiled ones do not
+    got = [[s.onset_s, s.cell, s.burst_s] for s in remote.stats.steps]
+    assert want and first_difference(got, want) is None, first_difference(got, want)
     assert remote.stats.ticks == want_ticks  # no tick at the opening sync
     assert phase_seen is want_phase is Phase.WALK  # the plant learned the phase from the state frames
     assert not gone and stats["alone"] == 0 and stats["ends"] == want_ticks + 1
