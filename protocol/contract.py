@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
-from typing import Mapping
+from typing import Callable, Mapping
 
 import cantools
 
@@ -217,6 +217,14 @@ class MessageCodec:
                 raise ValueError(f"{self.name}: value {value!r} outside the signal's raw range {(lo, hi)}")
             raw[i] = r
         return pack_raw(*raw)
+
+    def exact_reader(self) -> Callable[[bytes | bytearray], tuple]:
+        """What reads a payload of exactly :attr:`dlc` bytes, for a receiver that has checked the
+        length: the struct's own ``unpack_from`` where :meth:`unpack` would return that read
+        unchanged (every signal unscaled: Get_Encoder_Estimates, 1,000 frames a second), else
+        :meth:`unpack` itself. The same tuple of the same types either way."""
+        unpack_raw = self._unpack_raw
+        return unpack_raw if self._identity and unpack_raw is not None else self.unpack
 
     def accepts_length(self, length: int) -> bool:
         """True if a received payload of ``length`` bytes is acceptable (:data:`SHORT_FRAMES`)."""

@@ -91,36 +91,6 @@ TX_DROP_REASONS = ("tx_error", "tx_while_down", "refused_outside_limits")
 
 
 
-_STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h", (32, False): "I",
-                 (32, True): "i", (64, False): "Q", (64, True): "q"}
-
-
-def payload_reader(codec) -> Callable[[bytes | bytearray], tuple]:
-    """What :meth:`BusIO.drain` decodes a payload of exactly ``codec.dlc`` bytes with: a bare
-    ``struct`` read (built once, here) where every signal is an unscaled little-endian float32/64
-    or a byte-aligned 8-64 bit integer, since ``codec.unpack`` then returns exactly that read's
-    tuple (Get_Encoder_Estimates, 1,000 frames a second); ``codec.unpack`` otherwise."""
-    fmt = "<"
-    pos = 0
-    for sig in sorted(codec.message.signals, key=lambda s: s.start):
-        if (sig.byte_order != "little_endian" or sig.start % 8 or sig.start < pos or sig.scale != 1
-                or sig.offset != 0):
-            return codec.unpack
-        code = {32: "f", 64: "d"}.get(sig.length) if sig.is_float else _STRUCT_CODES.get((sig.length, sig.is_signed))
-        if code is None:
-            return codec.unpack
-        if sig.start > pos:
-            fmt += f"{(sig.start - pos) // 8}x"
-        fmt += code
-        pos = sig.start + sig.length
-    if pos > 8 * codec.dlc:
-        return codec.unpack
-    if pos < 8 * codec.dlc:
-        fmt += f"{(8 * codec.dlc - pos) // 8}x"
-    reader = struct.Struct(fmt)
-    return reader.unpack_from if reader.size == codec.dlc else codec.unpack
-
-
 @interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class ReopenPolicy:
@@ -208,7 +178,7 @@ class BusIO:
 
     def listen(self, arb_id: int, codec, handler: Handler) -> None:
         """Hand every valid frame with ``arb_id`` (decoded by ``codec``) to ``handler``."""
-        self._table[arb_id] = (handler, payload_reader(codec), codec.dlc, codec.name)
+        self._table[arb_id] = (handler, codec.exact_reader(), codec.dlc, codec.name)
 
     @staticmethod
     def _input_pos_reader(contract: BusContract) -> tuple[int, Callable[[bytes | bytearray], tuple]]:

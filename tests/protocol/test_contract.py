@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import random
 import struct
 
 import pytest
@@ -409,3 +410,23 @@ def test_sim_time_crosses_the_bus_bit_for_bit():
             assert data == struct.pack("<d", t) == bytes(codec.message.encode({"Sim_Time": t}))
             (back,) = codec.unpack(data)
             assert struct.pack("<d", back) == struct.pack("<d", t)
+
+
+def test_exact_reader_decodes_every_message_as_unpack_does():
+    """exact_reader (what BusIO.drain decodes with) is a bare struct read where that is exactly what unpack returns: for every
+    message of the DBC and payloads of its DLC (random bytes: NaN, huge, negative values), the same
+    tuple of the same types; Get_Encoder_Estimates (1,000 frames a second) takes the struct read."""
+    rng = random.Random(3)
+    fast = set()
+    for name, codec in contract.by_name.items():
+        read = codec.exact_reader()
+        if read != codec.unpack:
+            fast.add(name)
+        for _ in range(500):
+            data = bytearray(rng.getrandbits(8) for _ in range(codec.dlc))
+            expected, got = codec.unpack(data), read(data)
+            assert type(got) is type(expected) and len(got) == len(expected), name
+            for e, g in zip(expected, got):
+                assert type(g) is type(e) and (g == e or (e != e and g != g)), (name, bytes(data).hex())
+    assert {"Get_Encoder_Estimates", "SB_Contacts", "Get_Iq", "Get_Temperature"} <= fast
+    assert not {"Heartbeat", "SB_Range", "SB_Profile"} & fast  # scaled or bit fields: the codec
