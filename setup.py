@@ -1,8 +1,9 @@
 """Build: the hot modules compiled with mypyc, or pure Python when that cannot be done.
 
 Everything else about the package is in ``pyproject.toml``; this file only adds the extension
-modules. The list of modules is :data:`protocol.compiled.HOT_MODULES` (read from that file's
-source, not imported: the build environment has none of the project's dependencies). mypy (which
+modules. The list of modules, the digest and its file are :mod:`protocol.compiled`'s (loaded from
+its file, not imported as ``protocol``: the build environment has none of the project's
+dependencies, and that module needs none). mypy (which
 holds mypyc) is pinned in ``pyproject.toml``'s ``[build-system] requires``, so pip installs it into
 the isolated build environment; the C compiler and Python's headers come from the machine.
 
@@ -22,8 +23,7 @@ Rules:
 
 from __future__ import annotations
 
-import ast
-import hashlib
+import importlib.util
 import os
 import sys
 from pathlib import Path
@@ -33,26 +33,29 @@ from setuptools.command.build_ext import build_ext
 
 HERE = Path(__file__).resolve().parent
 WARNING = "elegant-stepping: WARNING: installing pure Python (slower, same results): "
-DIGEST_FILE = "compiled_sources.sha256"  # protocol.compiled.DIGEST_FILE
+
+
+def _load_compiled_rules():
+    """protocol/compiled.py, loaded from its file (it imports the standard library only, so it
+    runs in the build environment, which has none of the project's dependencies): the one place
+    that lists the hot modules, names the digest file and computes the digest."""
+    spec = importlib.util.spec_from_file_location("_elegant_stepping_compiled", HERE / "protocol" / "compiled.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+RULES = _load_compiled_rules()
 
 
 def _warn(why: str) -> None:
     print(WARNING + " ".join(str(why).split())[:300], file=sys.stderr, flush=True)
 
 
-def hot_modules() -> list[str]:
-    """``HOT_MODULES`` from protocol/compiled.py, read as a literal."""
-    tree = ast.parse((HERE / "protocol" / "compiled.py").read_text(encoding="utf-8"))
-    for node in tree.body:
-        if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == "HOT_MODULES":
-            return list(ast.literal_eval(node.value))
-    raise RuntimeError("protocol/compiled.py defines no HOT_MODULES")
-
-
 def ext_modules() -> list:
     if os.environ.get("ELEGANT_STEPPING_NO_COMPILE", "") == "1":
         return []
-    paths = [m.replace(".", "/") + ".py" for m in hot_modules()]
+    paths = [m.replace(".", "/") + ".py" for m in RULES.HOT_MODULES]
     old_cwd = os.getcwd()
     try:
         os.chdir(HERE)  # mypyc names the modules after the paths it is given
@@ -67,15 +70,6 @@ def ext_modules() -> list:
         return []
     finally:
         os.chdir(old_cwd)
-
-
-def sources_digest() -> str:
-    """protocol.compiled.sources_digest (a copy: that module cannot be imported here)."""
-    h = hashlib.sha256()
-    for name in hot_modules():
-        h.update(name.encode() + b"\0")
-        h.update((HERE / (name.replace(".", "/") + ".py")).read_bytes())
-    return h.hexdigest()
 
 
 PACKAGES = ("protocol", "firmware_sim", "controller", "hil")
@@ -97,7 +91,7 @@ class BuildExtOrPure(build_ext):
     and writes the digest of the compiled sources beside protocol/compiled.py when it succeeds."""
 
     def _digest_path(self) -> Path:
-        return (HERE if self.inplace else Path(self.build_lib)) / "protocol" / DIGEST_FILE
+        return (HERE if self.inplace else Path(self.build_lib)) / "protocol" / RULES.DIGEST_FILE
 
     def run(self) -> None:
         _remove_old_extensions()
@@ -115,7 +109,7 @@ class BuildExtOrPure(build_ext):
             return
         where = self._digest_path()
         where.parent.mkdir(parents=True, exist_ok=True)
-        where.write_text(sources_digest() + "\n", encoding="ascii")
+        where.write_text(RULES.sources_digest(HERE) + "\n", encoding="ascii")
 
     def get_outputs(self) -> list[str]:
         return [*super().get_outputs(), str(self._digest_path())] if self.extensions else []

@@ -23,7 +23,8 @@ never silently shadowed by the old extension.
 :func:`compiled_modules` says which hot modules this process runs compiled (for ``bench`` to write
 beside its figures); :func:`expected_compiled` is the rule the test of the compiled build uses.
 
-May import: the standard library only (it runs before anything else of the project).
+May import: the standard library only (it runs before anything else of the project, and
+``setup.py`` loads it in the build environment).
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ class _PurePythonFinder(importlib.abc.MetaPathFinder):
 
 def sources_digest(root: Path | None = None) -> str:
     """SHA-256 over the sources of :data:`HOT_MODULES` (names and bytes) under ``root`` (the folder
-    holding the packages; default: where this file's package is). ``setup.py`` has a copy."""
+    holding the packages; default: where this file's package is). ``setup.py`` writes it at build time."""
     root = Path(__file__).resolve().parents[1] if root is None else root
     h = hashlib.sha256()
     for name in HOT_MODULES:
@@ -138,20 +139,27 @@ def stale(digest_file: Path | None = None, root: Path | None = None) -> bool:
         return True
 
 
+_decided_pure: bool | None = None
+"""What :func:`install_pure_python_finder` decided in this process (None: not asked yet)."""
+
+
 def install_pure_python_finder() -> bool:
     """Put the pure-Python finder first on ``sys.meta_path`` (once per process) with
     ``ELEGANT_STEPPING_PURE_PYTHON=1``, or when the compiled modules are :func:`stale` (then with
     one warning: the ``.py`` files are what the user means to run, and a mix of old compiled and
     new pure modules is never run); returns whether it is installed."""
-    if any(isinstance(f, _PurePythonFinder) for f in sys.meta_path):
-        return True
+    global _decided_pure
+    if _decided_pure is not None:  # decided once per process: each package's __init__ asks, and
+        return _decided_pure      # stale() reads and hashes every hot source
     if not pure_python_requested():
         if not stale():
+            _decided_pure = False
             return False
         logging.getLogger(__name__).warning(
             "the compiled hot modules were built from other sources than these: running pure Python "
             "(reinstall, e.g. pip install -e ., to compile them again)")
     sys.meta_path.insert(0, _PurePythonFinder())
+    _decided_pure = True
     return True
 
 
