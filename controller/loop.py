@@ -181,9 +181,8 @@ class ControlLoop:
             self._another_master(now_s)
         before = sup.phase
         sup.update(now_s)
-        if sup.pending_watchdog:  # (check_watchdog_confirmations returns [] without one)
-            for a in sup.check_watchdog_confirmations(now_s):
-                self._write_watchdog(a, now_s)  # no read-back yet, or another value: again
+        for a in sup.check_watchdog_confirmations(now_s):
+            self._write_watchdog(a, now_s)  # no read-back yet, or another value: again
         phase = sup.phase
         if phase is Phase.WALK:  # the phase of nearly every tick, tested first
             self._walk(now_s, dt)

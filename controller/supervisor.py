@@ -170,24 +170,7 @@ class Supervisor:
         return [name for name, seen, beat in self._last_seen()
                 if now_s - seen > self.silence_timeout_s or now_s - beat > self.stale_heartbeat_s]
 
-    def _any_silent(self, now_s: float) -> bool:
-        """``bool(self.silent_nodes(now_s))``, the same comparisons without building the lists (it
-        runs every tick)."""
-        timeout = self.silence_timeout_s
-        stale = self.stale_heartbeat_s
-        for a in self.axes:
-            beat = a.heartbeat_t_s
-            seen = a.encoder_t_s if a.encoder_t_s > beat else beat  # max(beat, a.encoder_t_s)
-            if now_s - seen > timeout or now_s - beat > stale:
-                return True
-        s = self.sensors
-        beat = s.heartbeat_t_s
-        return (now_s - max(beat, s.range_t_s, s.contacts_t_s, s.profile_t_s) > timeout
-                or now_s - beat > stale)
-
     def _fault_if_silent(self, now_s: float) -> bool:
-        if not self._any_silent(now_s):
-            return False
         silent = self.silent_nodes(now_s)
         if silent:
             self.fault(f"node(s) silent for more than {self.silence_timeout_s:g} s (or no heartbeat for "
@@ -199,8 +182,7 @@ class Supervisor:
         if math.isnan(self.phase_t_s):
             self.phase_t_s = now_s
         phase = self.phase
-        walking = phase is Phase.WALK or phase is Phase.RAMP  # (identity tests: hashing an enum costs a call)
-        if walking or phase is Phase.ARMING:  # phase in ACTIVE_PHASES
+        if phase in ACTIVE_PHASES:
             for a in self.axes:  # the drivers' health readings against their bounds
                 cause = health_fault(self.health, a)
                 if cause is not None:
@@ -229,12 +211,10 @@ class Supervisor:
             if now_s - self.phase_t_s > self.bringup_timeout_s:
                 states = {a.name: (a.state.name, hex(a.error)) for a in self.axes}
                 self.fault(f"axes did not reach closed loop: {states}", now_s)
-        elif walking:
+        elif phase in (Phase.RAMP, Phase.WALK):
             if self._fault_if_silent(now_s):
                 return
             for a in self.axes:
-                if not a.error and a.state == AxisState.CLOSED_LOOP_CONTROL:
-                    continue  # a.closed_loop: nothing below applies (the common case, without the property)
                 if a.error and a.state is AxisState.CLOSED_LOOP_CONTROL:  # acted on in the tick it is drained
                     self.fault(f"axis {a.name} reported {error_text(a.error)} in closed loop", now_s)
                     return

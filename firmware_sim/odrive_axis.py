@@ -891,11 +891,7 @@ class SimOdriveAxis:
     def update(self, now_s: float, dt_s: float) -> None:
         """One control step at physics rate: watchdog, position-limit check, the cascade, the motor torque."""
         self.thermal.step(dt_s)  # the heat of the current applied over the step just simulated
-        # hot path: _check_watchdog, inlined (the same test, in the same place).
-        timeout = self._watchdog_timeout_s
-        if timeout > 0.0 and self.state is _CLOSED_LOOP and now_s - self._last_feed_s > timeout:
-            self.stats["watchdog_trips"] += 1
-            self._disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
+        self._check_watchdog(now_s)
         motor = self.motor
         raw_pos, vel = motor.motor_state()
         if self.state is not _CLOSED_LOOP:
@@ -915,10 +911,7 @@ class SimOdriveAxis:
             return
         mode = self.control_mode
         vel_limit = self.vel_limit_rev_s
-        # hot path: torque_limit_nm, inlined; ``hw if hw < cl else cl`` is min(cl, hw) (the same
-        # operand for every pair, NaN included) without the builtin's call (~0.15 us).
-        cl, hw = self.current_limit_a, self._hw_current_limit_a
-        torque_limit = self._kt * (hw if hw < cl else cl)
+        torque_limit = self.torque_limit_nm
         if mode is _TORQUE_CONTROL:
             torque = self.input_torque_nm
             # ODrive's enable_torque_mode_vel_limit: no torque that pushes further past the limit.
@@ -990,10 +983,8 @@ class SimOdriveAxis:
             nxt = self._next_enc + period
             self._next_enc = nxt if nxt > now_s else now_s + period
             self._tx[self._enc_name] += 1
-            # hot path: encoder_estimates and the codec's checks inlined (Get_Encoder_Estimates is
-            # two float32s: _pack_enc is the struct's pack, the same bytes).
-            pos, vel = self.motor.motor_state()
-            out.append(data_frame(self._enc_id, self._pack_enc(pos + self.pos_offset_rev, vel)))
+            # (Get_Encoder_Estimates is two float32s: _pack_enc is the struct's pack, the same bytes)
+            out.append(data_frame(self._enc_id, self._pack_enc(*self.encoder_estimates())))
         period = self._health_period_s
         if period > 0.0 and now_s >= self._next_health - _SCHEDULE_EPS_S:
             nxt = self._next_health + period

@@ -267,8 +267,7 @@ class SensorBoard:
             out.append(self._range_frame(self._sample_range()))
             if self.config.profile_enabled:
                 out.append(self._profile_frame(self._sample_profile()))
-        foot, shin = self.source.contacts()  # hot path: _read_contacts, inlined
-        contacts = (bool(foot), bool(shin))
+        contacts = self._read_contacts()
         period = self._contacts_period_s
         cyclic = period > 0.0 and now_s >= self._next_contacts - _SCHEDULE_EPS_S
         if cyclic:

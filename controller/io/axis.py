@@ -218,8 +218,6 @@ class AxisLink:
         self._max_speed_rad_s = feedback_limits.max_joint_speed_rad_s
         self._min_jump_dt_s = feedback_limits.min_jump_dt_s
         self._jump_slack_rad = feedback_limits.jump_slack_rad
-        self._min_rad = config.min_rad
-        self._max_rad = config.max_rad
         self._pos_lo_rev, self._pos_hi_rev = self.pos_bounds_rev
         self._pos_tail_still = _input_pos_tail_still(self._pos)
         self.reset_feedback()
@@ -338,8 +336,7 @@ class AxisLink:
         """Set_Input_Pos for joint target ``q_rad`` [rad] (clamped, see :meth:`clamp`) with
         velocity feed-forward ``qd_rad_s`` [rad/s] (0 if not finite, clamped to the signal's
         +-32 rev/s). The encoded position always lies in ``pos_bounds_rev``."""
-        # inside the limits (nearly always) without the call; clamp() decides every other case
-        q = q_rad if self._min_rad <= q_rad <= self._max_rad else self.clamp(q_rad)
+        q = self.clamp(q_rad)
         self.last_target_rad = q
         rev = self._offset_rev + q * self._rev_per_rad
         lo = self._pos_lo_rev

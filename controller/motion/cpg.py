@@ -106,15 +106,14 @@ class RingOscillator:
         onset = self._pending_onset
         self._pending_onset = False
         remaining = dt_s
-        # (500 Hz: the state in locals, _duration_s inlined with the same arithmetic)
+        # (500 Hz: the state in locals)
         n_half = self.n_half
         n_units = self.n_units
-        stance_s = self.config.stance_s
         active = self.active
         adaptation = self.adaptation
         # The handoff may happen inside this tick; carry the rest of dt into the next unit.
         for _ in range(n_units):
-            rate = 1.0 / ((stance_s if active < n_half else self.burst_s) / n_half)  # 1 / _duration_s(active)
+            rate = 1.0 / self._duration_s(active)
             need = (1.0 - adaptation) / rate
             if remaining < need:
                 adaptation += remaining * rate
