@@ -41,10 +41,24 @@ class RangeFilterConfig:
         check_settings(self, "range_filter")
 
 
+def inverse_1x1(s: np.ndarray) -> np.ndarray:
+    """The inverse of the filter's 1x1 innovation covariance ``S``: its reciprocal, bit for bit what
+    ``numpy.linalg.inv`` returns for a 1x1 matrix (LAPACK's solve divides 1 by the pivot), at a
+    fifth of its cost (4.4 us against 0.9 us alone, more inside a run). filterpy's documented knob
+    for it is ``KalmanFilter.inv``. Anything but a finite positive 1x1 (never here: S = P00 + R, R
+    > 0) goes to ``numpy.linalg.inv``, which raises on a singular matrix as before."""
+    if s.shape == (1, 1):
+        v = s[0, 0]
+        if 0.0 < v < math.inf:
+            return 1.0 / s
+    return np.linalg.inv(s)
+
+
 class RangeFilter:
     def __init__(self, config: RangeFilterConfig = RangeFilterConfig()) -> None:
         self.config = config
         self.kf = KalmanFilter(dim_x=2, dim_z=1)
+        self.kf.inv = inverse_1x1  # S is 1x1 (one range reading): no LAPACK call per update
         self.kf.H = np.array([[1.0, 0.0]])
         self.kf.R = np.array([[config.noise_m**2]])
         self.rejected = {"nan": 0, "out_of_range": 0, "stale": 0, "outlier": 0}

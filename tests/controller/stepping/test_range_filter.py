@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from controller.stepping.encoder import RangeEncoder, RangeEncoderConfig
-from controller.stepping.range_filter import RangeFilter, RangeFilterConfig
+from controller.stepping.range_filter import RangeFilter, RangeFilterConfig, inverse_1x1
 
 
 def approach(f: RangeFilter, rng, d0=2.5, v=-0.5, seconds=2.0, noise=0.02, dropout=0.0, tick=0.002):
@@ -35,6 +35,32 @@ def test_filter_beats_the_raw_noise_and_tracks_the_closing_speed():
     rms = math.sqrt(sum(e * e for e in errors) / len(errors))
     assert rms < 0.02 / 2, f"filtered rms {rms:.4f} m is not better than half the raw 0.02 m"
     assert rng is not None
+
+
+def test_the_1x1_inverse_is_numpys_bit_for_bit_and_so_is_the_filter():
+    rng = np.random.default_rng(1)
+    for v in rng.uniform(0.5, 1.0, 3000) * 10.0 ** rng.integers(-20, 20, 3000):
+        s = np.array([[v]])
+        assert inverse_1x1(s).tobytes() == np.linalg.inv(s).tobytes()
+    ours, numpys = RangeFilter(), RangeFilter()
+    numpys.kf.inv = np.linalg.inv  # filterpy's default
+    assert ours.kf.inv is inverse_1x1
+    for f in (ours, numpys):
+        approach(f, np.random.default_rng(7), dropout=0.2)
+    assert ours.kf.x.tobytes() == numpys.kf.x.tobytes() and ours.kf.P.tobytes() == numpys.kf.P.tobytes()
+    assert ours.used == numpys.used > 50
+
+
+@pytest.mark.parametrize("s", [np.eye(2) * 3.0, np.array([[0.0]]), np.array([[-2.0]]), np.array([[np.inf]])])
+def test_anything_but_a_positive_finite_1x1_goes_to_numpy(s):
+    """numpy's answer (or its LinAlgError for a singular matrix), never a reciprocal of its own."""
+    try:
+        want = np.linalg.inv(s)
+    except np.linalg.LinAlgError:
+        with pytest.raises(np.linalg.LinAlgError):
+            inverse_1x1(s)
+    else:
+        assert inverse_1x1(s).tobytes() == want.tobytes()
 
 
 def test_dropouts_mean_predict_only_and_are_counted():
