@@ -6,6 +6,16 @@ This is the physics only. Motor drivers (``odrive_axis``) reach the joints throu
 placement, resets) is a side channel of the simulation, never on the bus.
 
 Frames: x forward along the rail, z up; the ground's top face is z = 0.
+
+Compiled (:mod:`protocol.compiled`): :class:`RigPlant` is a native class that allows Python
+subclasses (the physics floor's recording plant, :mod:`hil.bench.physics_floor`); its
+configurations stay Python classes.
+
+The per-step PyBullet calls pass every argument positionally, the defaults written out: PyBullet
+parses its arguments with ``PyArg_ParseTupleAndKeywords``, which turns each C keyword name it
+looks for into a Python string on every call. The orders and defaults are each function's
+``kwlist`` in ``examples/pybullet/pybullet.c`` of bullet3 3.2.7 (the installed pybullet), written
+beside each call.
 """
 
 from __future__ import annotations
@@ -17,18 +27,26 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Final
 
 import pybullet
 from pybullet_utils import bullet_client
 
 import urdf
+from protocol.compiled import interpreted, mypyc_attr
 
 LEG_JOINTS = ("hip", "knee")
 PROFILE_MAX_BEAMS = 3  # beam slots in the sensor board's SB_Profile frame
 SENSOR_MAX_RANGE_M = 3.0  # the range sensor's and the profile beams' reach
-_SLOT = {name: i for i, name in enumerate(LEG_JOINTS)}
+_SLOT: Final = {name: i for i, name in enumerate(LEG_JOINTS)}
+_UNUSED_IN_TORQUE_CONTROL: Final = (0.0,) * len(LEG_JOINTS)
+"""``setJointMotorControlArray``'s targetPositions, targetVelocities, positionGains and
+velocityGains in TORQUE_CONTROL, given so the forces and the client id can be positional:
+pybullet.c reads them (one number a joint) and sends only the forces (its ``CONTROL_MODE_TORQUE``
+case)."""
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class RigConfig:
     """Physical set-up of the rig.
@@ -73,6 +91,7 @@ class RigConfig:
             raise ValueError(f"profile_heights_m must be strictly increasing, got {heights!r}")
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class Obstacle:
     """A rectangular block across the rail.
@@ -101,6 +120,7 @@ def _c_stdout_to_stderr():
         os.close(saved)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # the physics floor's recording plant
 class RigPlant:
     """The rig in a PyBullet world (DIRECT by default, GUI for a person watching)."""
 
@@ -126,7 +146,9 @@ class RigPlant:
         self.joint_limits_rad = {
             n: (p.getJointInfo(self.robot, j)[8], p.getJointInfo(self.robot, j)[9]) for n, j in self._joint_index.items()
         }
-        self.effort_limits_nm = {n: p.getJointInfo(self.robot, j)[10] for n, j in self._joint_index.items()}
+        self.effort_limits_nm: dict[str, float] = {
+            n: p.getJointInfo(self.robot, j)[10] for n, j in self._joint_index.items()
+        }
         # Joints are torque-driven: switch off PyBullet's default velocity motors.
         p.setJointMotorControlArray(self.robot, self._leg, pybullet.VELOCITY_CONTROL, forces=[0.0, 0.0])
         self._torque = [0.0, 0.0]
@@ -135,7 +157,9 @@ class RigPlant:
         self._urdf_dir = tempfile.TemporaryDirectory(prefix="es-obstacles-")
         self.t_s = 0.0
         self.rail_speed_m_s = config.rail_speed_m_s
-        self.reset()
+        # reset's defaults written out: compiled, a call that reaches a Python subclass's override
+        # (the recording plant) passes omitted float arguments as 0.0 (mypyc 2.4's glue ignores them)
+        self.reset(0.0, 0.5, -1.0)
 
     # -- scenario side channel -------------------------------------------------------------
     def reset(self, carriage_x_m: float = 0.0, hip_rad: float = 0.5, knee_rad: float = -1.0) -> None:
@@ -158,7 +182,7 @@ class RigPlant:
             self.robot, self._rail, pybullet.VELOCITY_CONTROL, targetVelocity=speed_m_s, force=2000.0
         )
 
-    GROUND_END_X_M = 399.0
+    GROUND_END_X_M: Final = 399.0
 
     def rewind_rail(self, distance_m: float) -> None:
         """Move the carriage (and the leg with it) back along the rail, keeping every joint's
@@ -206,16 +230,19 @@ class RigPlant:
     def step(self) -> None:
         """Apply the held torques and advance one physics step (the hot path: raw pybullet calls)."""
         cid = self._cid
-        pybullet.setJointMotorControlArray(
-            self.robot, self._leg, pybullet.TORQUE_CONTROL, forces=self._torque, physicsClientId=cid
-        )
-        pybullet.stepSimulation(physicsClientId=cid)
+        unused = _UNUSED_IN_TORQUE_CONTROL
+        # kwlist: bodyUniqueId, jointIndices, controlMode, targetPositions, targetVelocities, forces,
+        # positionGains, velocityGains, physicsClientId
+        pybullet.setJointMotorControlArray(self.robot, self._leg, pybullet.TORQUE_CONTROL, unused, unused,
+                                           self._torque, unused, unused, cid)
+        pybullet.stepSimulation(cid)  # kwlist: physicsClientId
         self.t_s += self.dt_s
         self._read_states()
 
     def _read_states(self) -> None:
         # the leg's joints and the rail in one call: the rail's state is the last one
-        self._states = tuple(pybullet.getJointStates(self.robot, self._read_joints, physicsClientId=self._cid))
+        # kwlist: bodyUniqueId, jointIndices, physicsClientId
+        self._states = tuple(pybullet.getJointStates(self.robot, self._read_joints, self._cid))
 
     # -- sensor board side -----------------------------------------------------------------
     @property
@@ -230,7 +257,8 @@ class RigPlant:
         x0 = self.carriage_x_m + c.sensor_offset_x_m
         z0 = c.sensor_height_m
         length = math.hypot(c.sensor_aim_m, z0)
-        hit = pybullet.rayTest([x0, 0.0, z0], [x0 + c.sensor_aim_m, 0.0, 0.0], physicsClientId=self._cid)[0]
+        # kwlist: rayFromPosition, rayToPosition, collisionFilterMask=-1, reportHitNumber=-1, physicsClientId
+        hit = pybullet.rayTest([x0, 0.0, z0], [x0 + c.sensor_aim_m, 0.0, 0.0], -1, -1, self._cid)[0]
         if hit[0] < 0 or hit[0] == self.robot:
             return None
         distance = hit[2] * length
@@ -245,8 +273,10 @@ class RigPlant:
             return ()
         x0 = self.carriage_x_m + self.config.sensor_offset_x_m
         reach = SENSOR_MAX_RANGE_M
+        # kwlist: rayFromPositions, rayToPositions, numThreads=1, parentObjectUniqueId=-1, parentLinkIndex=-1,
+        # reportHitNumber=-1, collisionFilterMask=-1, fractionEpsilon=-1.0, physicsClientId
         hits = pybullet.rayTestBatch([[x0, 0.0, h] for h in heights], [[x0 + reach, 0.0, h] for h in heights],
-                                     physicsClientId=self._cid)
+                                     1, -1, -1, -1, -1, -1.0, self._cid)
         return tuple(None if hit[0] < 0 or hit[0] == self.robot else hit[2] * reach for hit in hits)
 
     def contacts(self) -> tuple[bool, bool]:
@@ -259,7 +289,8 @@ class RigPlant:
             return self._contacts
         foot = shin = False
         threshold = self.config.contact_force_n
-        points = pybullet.getContactPoints(bodyA=self.robot, physicsClientId=self._cid)
+        # kwlist: bodyA, bodyB=-1, linkIndexA=-2, linkIndexB=-2, physicsClientId
+        points = pybullet.getContactPoints(self.robot, -1, -2, -2, self._cid)
         for pt in points:
             if pt[9] > threshold:
                 if pt[3] == self.foot_link:
@@ -275,7 +306,8 @@ class RigPlant:
     # -- ground truth for experiments (never on the bus) ------------------------------------
     def foot_position(self) -> tuple[float, float]:
         """World (x, z) of the foot sphere's lowest point [m]."""
-        pos = pybullet.getLinkState(self.robot, self.foot_link, physicsClientId=self._cid)[0]
+        # kwlist: bodyUniqueId, linkIndex, computeLinkVelocity=0, computeForwardKinematics=0, physicsClientId
+        pos = pybullet.getLinkState(self.robot, self.foot_link, 0, 0, self._cid)[0]
         return pos[0], pos[2] - 0.02
 
     def obstacle_contact(self) -> bool:
@@ -294,7 +326,7 @@ class RigPlant:
                     return True
             return False
         for body, _ in obstacles:
-            if pybullet.getContactPoints(bodyA=self.robot, bodyB=body, physicsClientId=self._cid):
+            if pybullet.getContactPoints(self.robot, body, -2, -2, self._cid):  # kwlist: see contacts
                 return True
         return False
 

@@ -37,7 +37,7 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import Sequence, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Sequence, TypeVar
 
 _C = TypeVar("_C", bound=type)
 
@@ -49,11 +49,10 @@ PURE_PYTHON_ENV = "ELEGANT_STEPPING_PURE_PYTHON"
 DIGEST_FILE = "compiled_sources.sha256"
 
 #: The modules an install compiles with mypyc: the hot path of a lockstep run, less those that
-#: gain little or that a caller changes at run time (``firmware_sim.plant``: the bench's physics
-#: floor swaps a plant's ``__class__``, which a compiled class refuses; ``protocol.frame``: a
-#: ``can.Message`` subclass with ``__slots__``, which mypyc refuses; ``hil.lockstep.harness``: its
-#: ``LegHarness`` is subclassed outside it (``SimTimePlant``), which a compiled class refuses, and
-#: its step is one call).
+#: gain little. A class of one of them that code outside subclasses (``Lockstep``, ``RigPlant``)
+#: carries :func:`mypyc_attr` ``(allow_interpreted_subclasses=True)``; a class that must stay a
+#: Python class (a configuration, ``protocol.frame.Frame``: a ``can.Message``) carries
+#: :func:`interpreted`.
 HOT_MODULES: tuple[str, ...] = (
     "firmware_sim.odrive_axis",
     "firmware_sim.node_host",
@@ -77,6 +76,12 @@ HOT_MODULES: tuple[str, ...] = (
     "protocol.contract",
     "hil.lockstep.localbus",
     "hil.lockstep.groundtruth",
+    "hil.lockstep.harness",
+    "firmware_sim.plant",
+    "controller.motion.gait",
+    "controller.motion.muscle",
+    "controller.io.health",
+    "protocol.frame",
 )
 
 
@@ -90,6 +95,18 @@ def interpreted(cls: _C) -> _C:
     code, the project promises; an ``int`` becomes a ``float``): configurations then behave exactly
     as in pure Python. Per-tick records stay native (they are what compiling speeds up)."""
     return cls
+
+
+if TYPE_CHECKING:
+    from mypy_extensions import mypyc_attr
+else:
+    def mypyc_attr(*attrs: str, **kwattrs: Any) -> Callable[[_C], _C]:
+        """``mypy_extensions.mypyc_attr`` for the runtime (identity): mypyc reads the decorator from
+        the source when it compiles (it knows it by that name, which is what type checkers see
+        here) and never calls it; pure Python calls this one, so ``mypy_extensions`` (a build
+        requirement, not a dependency) need not be installed. The hot modules use it for
+        ``allow_interpreted_subclasses=True``: a native class refuses Python subclasses without it."""
+        return lambda cls: cls
 
 
 def pure_python_requested() -> bool:

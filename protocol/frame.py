@@ -4,17 +4,25 @@ python-can's ``virtual`` bus deep-copies every frame once per receiver; ``can.Me
 copy goes through the generic ``copy`` machinery for its payload and dominated the lockstep
 profile. :class:`Frame` is a ``can.Message`` in every respect, with a direct copy (a new
 ``bytearray`` for the payload). Real interfaces (SocketCAN) never copy and see no difference.
+
+Compiled (:mod:`protocol.compiled`): :func:`data_frame` runs native; :class:`Frame` stays a Python
+class (``@interpreted``): a native class cannot subclass ``can.Message``, and frames must be
+``can.Message`` instances to every python-can bus.
 """
 
 from __future__ import annotations
 
 import can
+import can.message  # noqa: F401 - compiled, the base class is read from its defining module, which must be imported
+
+from protocol.compiled import interpreted
 
 _new_object = object.__new__
 """``Frame.__new__`` (can.Message defines none), bound once: looked up through the class it costs
 ~0.1 us a frame on the hot path."""
 
 
+@interpreted  # a can.Message subclass: a Python class even when compiled
 class Frame(can.Message):
     __slots__ = ()
 
@@ -34,7 +42,10 @@ class Frame(can.Message):
         new.error_state_indicator = self.error_state_indicator
         return new
 
-    __copy__ = __deepcopy__
+    def __copy__(self) -> "Frame":
+        """The same copy as :meth:`__deepcopy__` (a new payload; compiled, a class body cannot
+        name its own methods, so this is a method of its own)."""
+        return self.__deepcopy__(None)
 
 
 def data_frame(arbitration_id: int, data: bytes | bytearray) -> Frame:

@@ -21,10 +21,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from controller.settings.schema import check_settings, setting
+from protocol.compiled import interpreted
+
+if TYPE_CHECKING:  # controller.io.axis imports this module
+    from controller.io.axis import AxisLink
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class HealthConfig:
     """The bounds of the drivers' runtime readings (TOML section ``[health]``).
@@ -56,7 +62,7 @@ class HealthConfig:
                              f"{self.max_bus_voltage_v}")
 
 
-def health_fault(config: HealthConfig, axis) -> str | None:
+def health_fault(config: HealthConfig, axis: AxisLink) -> str | None:
     """The first bound ``axis`` (an :class:`~controller.io.axis.AxisLink`) is beyond, as the
     fault's cause, or None (a reading not received is not checked)."""
     name = axis.name

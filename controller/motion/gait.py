@@ -16,8 +16,10 @@ from dataclasses import dataclass
 from controller.motion.cpg import CpgConfig, CpgOutput
 from controller.motion.kinematics import LegGeometry
 from controller.settings.schema import check_settings, setting
+from protocol.compiled import interpreted
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class GaitConfig:
     """Foot trajectory shaping. ``ramp_s``: the move from the pose found at bring-up to the gait's

@@ -11,15 +11,17 @@ motion (a collapsed leg with zero torque) is no floor, it costs more a step than
    made of PyBullet between steps (rail position, contacts, range ray, profile beams, foot position,
    obstacle contact where the plant could not answer it from the step's contact points: the sensor
    board at its rates and the experiment's ground truth), and the leg's
-   joint states after the step. It is recorded from outside: the run's plant is switched to a
-   recording subclass (:class:`_RecordingPlant`) that calls the plant's own methods and notes them;
-   nothing under ``firmware_sim`` or ``controller`` changes, and the recording run is never timed.
+   joint states after the step. It is recorded from outside: the run's harness is a
+   :class:`_RecordingLockstep`, whose leg runs on a recording subclass of the plant
+   (:class:`_RecordingPlant`) that calls the plant's own methods and notes them; nothing under
+   ``firmware_sim`` or ``controller`` changes, and the recording run is never timed.
 2. :func:`replay` builds a fresh world with the plant's own constructor (:class:`RigPlant`, DIRECT,
    the same :class:`RigConfig`: nothing of the world differs), applies the recorded torques step by
    step with the calls :meth:`RigPlant.step` makes (``setJointMotorControlArray`` with
    ``TORQUE_CONTROL``, ``stepSimulation``, ``getJointStates``), replays the events through the
    plant's own methods at the same places, and, with ``queries``, makes the recorded queries with
-   the raw PyBullet calls the plant makes for them (each kind at most once between two steps, the
+   the raw PyBullet calls the plant makes for them, with the same arguments, positional where the
+   plant passes them so (each kind at most once between two steps, the
    minimum the stack needs: the stack may ask the rail several times a step). :func:`exact` checks
    that the joint states are the recorded ones bit for bit.
 3. :func:`measure` times the stack (the same run again, unrecorded: it is deterministic for a
@@ -49,7 +51,8 @@ from typing import Any, Iterable
 
 import pybullet
 
-from firmware_sim.plant import SENSOR_MAX_RANGE_M, Obstacle, RigConfig, RigPlant
+from firmware_sim.plant import _UNUSED_IN_TORQUE_CONTROL, SENSOR_MAX_RANGE_M, Obstacle, RigConfig, RigPlant
+from hil.lockstep.harness import Lockstep, LockstepConfig
 
 log = logging.getLogger(__name__)
 
@@ -101,16 +104,21 @@ class _Stop(Exception):
 class _RecordingPlant(RigPlant):
     """The plant of a recording run: every method the stack uses, the plant's own, noted.
 
-    Set as the ``__class__`` of a built :class:`RigPlant` (:func:`_start_recording`): the world it
-    built is kept, only the method lookup changes. Queries are noted when they return (a range ray
-    reads the rail first, so the rail is noted first); events only at the outermost call (a rewind
-    sets the rail speed itself)."""
+    Built by :class:`_RecordingLockstep` with the plant's own constructor (what happens in it, a
+    reset, is not noted: the replay's plant is built the same way). A Python subclass of the
+    compiled plant (``RigPlant`` allows them): the compiled stack's calls on it reach these methods
+    (mypyc gives a Python subclass's instances a table of calls through Python). Queries are noted
+    when they return (a range ray reads the rail first, so the rail is noted first); events only at
+    the outermost call (a rewind sets the rail speed itself)."""
 
-    _rec_ops: list[list[tuple]]
-    _rec_since_event: set[str]
-    _rec_depth: int
-    _rec_torques: list[tuple[float, float]]
-    _rec_states: list[tuple]
+    def __init__(self, config: RigConfig) -> None:
+        self._rec_ops: list[list[tuple]] = [[]]
+        self._rec_since_event: set[str] = set()
+        self._rec_depth = 1  # the constructor's own reset is not an event of the run
+        self._rec_torques: list[tuple[float, float]] = []
+        self._rec_states: list[tuple] = []
+        super().__init__(config)
+        self._rec_depth = 0
 
     def _note_query(self, name: str) -> None:
         if name not in self._rec_since_event:
@@ -156,7 +164,7 @@ class _RecordingPlant(RigPlant):
     # -- queries
     @property
     def carriage_x_m(self) -> float:
-        x = RigPlant.carriage_x_m.fget(self)  # type: ignore[attr-defined]
+        x = RigPlant.carriage_x_m.__get__(self)  # a property, or a compiled class's getset descriptor
         self._note_query("rail")
         return x
 
@@ -191,16 +199,29 @@ class _RecordingPlant(RigPlant):
         return r
 
 
-def _start_recording(plant: RigPlant) -> None:
-    if type(plant) is not RigPlant:
-        raise TypeError(f"can record only a RigPlant, got {type(plant).__name__}")
-    plant.__class__ = _RecordingPlant
-    rec: Any = plant
-    rec._rec_ops = [[]]
-    rec._rec_since_event = set()
-    rec._rec_depth = 0
-    rec._rec_torques = []
-    rec._rec_states = []
+class _RecordingLockstep(Lockstep):
+    """The harness of a recording run: a :class:`Lockstep` whose leg runs on a
+    :class:`_RecordingPlant`.
+
+    The leg (``firmware_sim.leg.SimulatedLeg``) builds its own plant; this harness builds a
+    recording plant of the same configuration beside it, before anything has stepped or read it,
+    gives it to every holder of the first (the leg, each axis's motor, the sensor board), and closes
+    the first (a holder missed would fail loudly: its plant is disconnected). The two worlds are
+    built by the same constructor from the same configuration: nothing of the run differs (the
+    recorded states are checked against an unrecorded run's by :func:`measure`)."""
+
+    def __init__(self, config: LockstepConfig, **kwargs: Any) -> None:
+        super().__init__(config, **kwargs)
+        leg: Any = self.leg
+        first = leg.plant
+        if type(first) is not RigPlant:
+            raise TypeError(f"can record only a RigPlant, got {type(first).__name__}")
+        plant = _RecordingPlant(config.rig)
+        leg.plant = plant
+        for axis in leg.axes.values():
+            axis.motor.plant = plant
+        leg.board.source = plant
+        first.close()
 
 
 def _learning_run(seed: int, recording: bool) -> Any:
@@ -208,10 +229,7 @@ def _learning_run(seed: int, recording: bool) -> Any:
     configuration), built, not stepped; with ``recording``, its plant records."""
     from hil.experiments.learn import LearnConfig, LearningRun
 
-    run = LearningRun(LearnConfig(seed=seed))
-    if recording:
-        _start_recording(run.ls.plant)
-    return run
+    return LearningRun(LearnConfig(seed=seed), harness=_RecordingLockstep if recording else Lockstep)
 
 
 def _drive(run: Any, seconds: float) -> int:
@@ -278,7 +296,9 @@ def replay(rec: Recording, *, queries: bool = False) -> dict[str, Any]:
 
 def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, Any]:
     """The replay loop: the plant's raw PyBullet calls on its own ids (``_cid``, ``_leg``, ``_rail``:
-    read here, never changed), with no layer of Python between them but the loop's."""
+    read here, never changed), with no layer of Python between them but the loop's; each call
+    passes its arguments as :mod:`firmware_sim.plant` does (positional, the defaults written out:
+    the orders are in its docstring's source, pybullet.c's kwlists)."""
     cfg = plant.config
     cid = plant._cid
     robot = plant.robot
@@ -306,6 +326,7 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
     rays = pybullet.rayTestBatch
     link_state = pybullet.getLinkState
     torque_control = pybullet.TORQUE_CONTROL
+    unused = _UNUSED_IN_TORQUE_CONTROL  # the targets and gains TORQUE_CONTROL does not use, as the plant gives them
     x = 0.0
     last: Any = plant._states
     switches = (False, False)  # what the sensor board would send: the floor does the plant's work for it
@@ -318,7 +339,7 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
                 x = last[-1][0]  # read with the joint states, as the plant reads it
             elif name == "contacts":
                 foot = shin = False
-                for pt in contact_points(bodyA=robot, physicsClientId=cid):
+                for pt in contact_points(robot, -1, -2, -2, cid):
                     if pt[9] > threshold:
                         if pt[3] == foot_link:
                             foot = True
@@ -327,15 +348,16 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
                 switches = (foot, shin)
             elif name == "range":
                 x0 = x + offset_x
-                ray([x0, 0.0, z0], [x0 + aim, 0.0, 0.0], physicsClientId=cid)
+                ray([x0, 0.0, z0], [x0 + aim, 0.0, 0.0], -1, -1, cid)
             elif name == "profile":
                 x0 = x + offset_x
-                rays([[x0, 0.0, h] for h in heights], [[x0 + reach, 0.0, h] for h in heights], physicsClientId=cid)
+                rays([[x0, 0.0, h] for h in heights], [[x0 + reach, 0.0, h] for h in heights], 1, -1, -1, -1, -1, -1.0,
+                     cid)
             elif name == "foot":
-                link_state(robot, foot_link, physicsClientId=cid)
+                link_state(robot, foot_link, 0, 0, cid)
             elif name == "obstacle_contact":
                 for body in bodies:
-                    if contact_points(bodyA=robot, bodyB=body, physicsClientId=cid):
+                    if contact_points(robot, body, -2, -2, cid):
                         break
             elif name == "add_obstacle":
                 bodies.append(plant.add_obstacle(op[1]))
@@ -358,9 +380,9 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
     if after[0] is not None:
         run_ops(after[0])
     for k in range(n):
-        set_motors(robot, leg, torque_control, forces=torques[k], physicsClientId=cid)
-        step_sim(physicsClientId=cid)
-        out[k] = last = joint_states(robot, joints, physicsClientId=cid)
+        set_motors(robot, leg, torque_control, unused, unused, torques[k], unused, unused, cid)
+        step_sim(cid)
+        out[k] = last = joint_states(robot, joints, cid)
         ops = after[k + 1]
         if ops is not None:
             run_ops(ops)

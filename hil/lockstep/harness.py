@@ -11,12 +11,17 @@ simulated clock) between the controller and the bus, :meth:`Lockstep.silence` ma
 frames vanish on it, :meth:`Lockstep.cut_bus` pulls the controller's cable, and
 :meth:`Lockstep.kill_controller` stops the controller dead (``kill -9``: no more ticks, no
 goodbye frames) while the leg runs on.
+
+Compiled (:mod:`protocol.compiled`): :class:`LegHarness` and :class:`Lockstep` are native classes
+that allow Python subclasses (``SimTimePlant``, ``SyncedLockstep``, the physics floor's recording
+harness); :class:`LockstepConfig` stays a Python class, as every configuration.
 """
 
 from __future__ import annotations
 
 import itertools
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import can
@@ -25,13 +30,15 @@ from controller.config import ControllerConfig
 from controller.loop import ControlLoop
 from controller.stepping.premotor import Premotor
 from firmware_sim.leg import LegHardware, SimulatedLeg
-from firmware_sim.plant import RigConfig
+from firmware_sim.plant import RigConfig, RigPlant
 from hil.faults.model import BusOffBus, CutBus, FaultSpec, FaultyBus
 from hil.lockstep.localbus import BUSES
+from protocol.compiled import interpreted, mypyc_attr
 
 _channel_counter = itertools.count()
 
 
+@interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class LockstepConfig:
     """A lockstep session.
@@ -62,6 +69,7 @@ class LockstepConfig:
             )
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # SimTimePlant (hil.lockstep.synced)
 class LegHarness:
     """What every harness around a simulated leg shares: ``leg``, its ``plant`` and clock
     ``t_s``, and closing as a context manager (``close`` is the harness's own)."""
@@ -69,7 +77,7 @@ class LegHarness:
     leg: SimulatedLeg
 
     @property
-    def plant(self):
+    def plant(self) -> RigPlant:
         return self.leg.plant
 
     @property
@@ -86,6 +94,7 @@ class LegHarness:
         self.close()
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # SyncedLockstep, the physics floor's recording run
 class Lockstep(LegHarness):
     """``bus``: the in-process bus, a name of :data:`hil.lockstep.localbus.BUSES` (default
     ``"local"``, python-can's ``BusABC`` without copies, locks or clock reads; ``"virtual"`` is
@@ -96,9 +105,9 @@ class Lockstep(LegHarness):
         self.config = config
         channel = f"lockstep-{uuid.uuid4().hex}-{next(_channel_counter)}"
         self.channel = channel
-        self._make_bus = BUSES[bus]
-        self.firmware_bus = self._make_bus(channel)
-        self.controller_bus = self._make_bus(channel)
+        self._make_bus: Callable[[str], can.BusABC] = BUSES[bus]
+        self.firmware_bus: can.BusABC = self._make_bus(channel)
+        self.controller_bus: can.BusABC = self._make_bus(channel)  # SyncedLockstep puts its own
         self.leg = SimulatedLeg(self.firmware_bus, rig=config.rig, hardware=config.hardware, seed=config.seed, gui=gui)
         self.loop = ControlLoop(config.controller, self.controller_bus, premotor=premotor)
         self.ticks_per_control = int(round(config.rig.physics_hz / config.controller.rate_hz))
@@ -118,9 +127,12 @@ class Lockstep(LegHarness):
 
     def cut_bus(self, cut: bool = True) -> None:
         """Pull (``cut=True``) or plug back the controller's cable."""
-        if cut and self._cut is None:
+        if not cut:
+            self.loop.io.bus = self.controller_bus
+            return
+        if self._cut is None:
             self._cut = CutBus(self.controller_bus)
-        self.loop.io.bus = self._cut if cut else self.controller_bus
+        self.loop.io.bus = self._cut
 
     def observer(self) -> can.BusABC:
         """A third node on the bus that hears every frame (read it often: its queue has no bound)."""

@@ -102,3 +102,23 @@ def test_bench_reports_the_floor_and_no_figure_of_another_motion(monkeypatch):
     assert b["stack_us_per_step"] == 60.0 and b["stack_vs_floor"] == 6.0 and b["stack_vs_floor_queries"] == 5.0
     assert b["detail"]["physics_floor"] == {"pairs": ["p"]} and b["lockstep_rtf"] == 1.0
     assert not {"bare_physics_rtf", "lockstep_vs_bare"} & b.keys()
+
+
+def test_the_recording_run_records_on_the_plant_every_part_of_the_leg_holds():
+    """The recording harness gives its recording plant to every holder of the leg's first plant
+    (closed: a holder missed would fail loudly), built as the plant is, its construction not noted."""
+    from firmware_sim.plant import RigPlant
+
+    run = pf._learning_run(0, recording=True)
+    fresh = RigPlant(run.ls.config.rig)
+    try:
+        plant = run.ls.plant
+        assert type(plant) is pf._RecordingPlant
+        leg = run.ls.leg
+        assert leg.board.source is plant and run.tracker.plant is plant
+        assert all(axis.motor.plant is plant for axis in leg.axes.values())
+        assert plant._rec_ops == [[]] and plant._rec_torques == []
+        assert plant._states == fresh._states  # the rest pose: reset's defaults reached the compiled plant
+    finally:
+        fresh.close()
+        run.close()

@@ -15,8 +15,13 @@ import pytest
 from controller.errors import check_stamp
 from hil.bench import profile as prof
 from hil.cli import main
+from protocol.compiled import compiled_modules
 
 MUST_HAVE_TIME = ("step_simulation", "controller", "firmware_sim", "bus")
+
+PLANT_COMPILED = "firmware_sim.plant" in compiled_modules()
+"""cProfile sees a builtin only where Python code calls it: with the plant compiled, no
+``pybullet.stepSimulation`` entry (its time is in its nearest caller that runs as Python)."""
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +40,7 @@ def test_a_one_trial_profile_writes_the_three_files(made):
     assert (data["trials"], data["seed"]) == (1, 0) and data["sim_s"] > 0
     assert data == json.loads(json.dumps(result))
     raw = pstats.Stats(str(out / "profile.pstats")).stats  # type: ignore[attr-defined]
-    assert any(name == "<built-in method pybullet.stepSimulation>" for _, _, name in raw)
+    assert PLANT_COMPILED or any(name == "<built-in method pybullet.stepSimulation>" for _, _, name in raw)
     text = (out / "profile.txt").read_text()
     for layer in data["layers"].values():
         assert layer["label"] in text
@@ -53,6 +58,8 @@ def test_the_shares_sum_to_one_and_every_layer_is_listed(made):
 
 @pytest.mark.parametrize("key", MUST_HAVE_TIME)
 def test_the_layers_of_the_hot_path_have_time(made, key):
+    if key == "step_simulation" and PLANT_COMPILED:
+        pytest.skip("the compiled plant calls stepSimulation where cProfile does not see it")
     assert made[1]["layers"][key]["seconds"] > 0.0
 
 
@@ -64,8 +71,9 @@ def test_the_top_functions_are_thirty_in_order_with_their_layers(made):
     for f in top:  # each function's self time is handed out whole, to layers of the registry or other
         assert set(f["layers_s"]) <= {layer.key for layer in prof.LAYERS} | {prof.OTHER}
         assert math.isclose(sum(f["layers_s"].values()), f["self_s"], rel_tol=1e-9, abs_tol=1e-12)
-    step = next(f for f in top if f["function"] == "<built-in method pybullet.stepSimulation>")
-    assert list(step["layers_s"]) == ["step_simulation"]
+    if not PLANT_COMPILED:  # else cProfile does not see it
+        step = next(f for f in top if f["function"] == "<built-in method pybullet.stepSimulation>")
+        assert list(step["layers_s"]) == ["step_simulation"]
 
 
 # ---- the rules, on call graphs built by hand -------------------------------------------------------------------

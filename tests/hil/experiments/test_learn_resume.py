@@ -261,47 +261,42 @@ def test_sigterm_stops_with_one_line_and_keeps_the_finished_trials(tmp_path):
 def test_pybullet_save_and_restore_in_memory_is_bit_exact_over_a_trial_boundary():
     """Which holds (docs/runs.md): restoring the in-memory state saved at a trial boundary and
     stepping the plant with the same torques (and the same obstacle added and removed) gives every
-    joint's position and velocity bit for bit as the uninterrupted continuation did."""
+    joint's position and velocity bit for bit as the uninterrupted continuation did. The run's
+    plant records what it is given (the physics floor's recording harness: a compiled plant's
+    methods cannot be replaced on the instance)."""
     import pybullet
 
-    run = learn.LearningRun(LearnConfig(trials=2, seed=SEED))
+    from firmware_sim.plant import RigPlant
+    from hil.bench.physics_floor import _RecordingLockstep
+
+    run = learn.LearningRun(LearnConfig(trials=2, seed=SEED), harness=_RecordingLockstep)
     try:
         run.bring_up()
         run.trial(0)
         plant = run.ls.plant
         cid = plant._cid
-        joints = range(pybullet.getNumJoints(plant.robot, physicsClientId=cid))
-
-        def states():
-            return [tuple(s[:2]) for s in pybullet.getJointStates(plant.robot, joints, physicsClientId=cid)]
-
         saved = pybullet.saveState(physicsClientId=cid)
-        events, continuation = [], []
-        step, add, clear = plant.step, plant.add_obstacle, plant.clear_obstacles
-
-        def recording_step():
-            events.append(("step", list(plant._torque)))
-            step()
-            continuation.append(states())
-
-        plant.step = recording_step
-        plant.add_obstacle = lambda o: (events.append(("add", o)), add(o))[1]
-        plant.clear_obstacles = lambda: (events.append(("clear", None)), clear())[1]
+        k0, n0 = len(plant._rec_torques), len(plant._rec_ops[-1])  # steps done, ops noted since the last
         run.trial(1)  # the whole stack: drivers, controller, learner
-        plant.step, plant.add_obstacle, plant.clear_obstacles = step, add, clear
-        assert [e[0] for e in events if e[0] != "step"] == ["add", "clear"] and len(continuation) > 1000
+        torques = plant._rec_torques[k0:]
+        gaps = [plant._rec_ops[k0][n0:], *plant._rec_ops[k0 + 1:]]  # gaps[k]: what came before step k of trial 1
+        continuation = [[tuple(s[:2]) for s in states] for states in plant._rec_states[k0:]]
+        events = [op for gap in gaps for op in gap if op[0] in ("add_obstacle", "clear_obstacles", "rewind",
+                                                                 "rail_speed", "reset")]
+        assert [e[0] for e in events] == ["add_obstacle", "clear_obstacles"] and len(continuation) > 1000
 
         pybullet.restoreState(saved, physicsClientId=cid)
         replayed = []
-        for kind, x in events:
-            if kind == "step":
-                plant._torque = list(x)
-                plant.step()
-                replayed.append(states())
-            elif kind == "add":
-                plant.add_obstacle(x)
-            else:
-                plant.clear_obstacles()
+        for k, gap in enumerate(gaps):
+            for op in gap:  # the plant's own methods, not the recording's
+                if op[0] == "add_obstacle":
+                    RigPlant.add_obstacle(plant, op[1])
+                elif op[0] == "clear_obstacles":
+                    RigPlant.clear_obstacles(plant)
+            if k < len(torques):
+                plant._torque = list(torques[k])
+                RigPlant.step(plant)
+                replayed.append([tuple(s[:2]) for s in plant._states])
         first = next((i for i, (a, b) in enumerate(zip(continuation, replayed)) if a != b), None)
         assert first is None, f"step {first}: {continuation[first]} vs {replayed[first]}"
         assert len(replayed) == len(continuation)
