@@ -30,6 +30,14 @@ numpy is a layer by rule 1 (what the stack spends in numpy is worth knowing as s
 the table also split it by the layer that called it (rule 2 applied with numpy left out of the
 registry), so the range filter's numpy work can be added to it by the reader.
 
+**Compiled or not.** cProfile sees Python functions only: in a process that runs the hot modules
+compiled (mypyc, :mod:`protocol.compiled`), the plant, the firmware, the bus and the controller
+would all be invisible, their time (and PyBullet's) booked to the nearest caller still in Python.
+So :func:`write_profile`, asked in such a process, profiles in a child process that runs them as
+pure Python (``ELEGANT_STEPPING_PURE_PYTHON=1``: the same trials, every layer visible) and reads
+its files back: the profile is always of the pure-Python stack (``profile.json``: ``"python":
+"pure"``). Compiling shrinks the Python layers, not PyBullet's or numpy's; read the shares so.
+
 Caveats: cProfile's clock is the wall clock (``time.perf_counter``), and it adds a fixed cost to
 every Python call, so the run takes two to three times as long as without it and the layers of
 many small Python calls (the bus, the codec, the controller, the firmware simulation) take shares
@@ -52,10 +60,12 @@ A new layer is one line in :data:`LAYERS`.
 from __future__ import annotations
 
 import cProfile
+import json
 import logging
 import os
 import pstats
 import re
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -89,6 +99,7 @@ class Layer:
 
 LAYERS: tuple[Layer, ...] = (
     Layer("bus", "python-can's bus", ("can",)),
+    Layer("local_bus", "the lockstep's in-process bus (hil.lockstep.localbus)", ("hil.lockstep.localbus",)),
     Layer("step_simulation", "PyBullet stepSimulation", ("pybullet.stepSimulation",)),
     Layer("pybullet_calls", "other PyBullet calls (joint states, contacts, rays)", ("pybullet", "pybullet_utils")),
     Layer("range_filter", "range filter (filterpy + controller.stepping.range_filter)",
@@ -334,7 +345,7 @@ def profile_learning(trials: int, seed: int) -> tuple[cProfile.Profile, dict[str
 def table(result: Mapping[str, Any]) -> str:
     """``profile.json``'s content as the human-readable table of ``profile.txt``."""
     lines = [f"elegant-stepping bench --profile: learning run, {result['trials']} trial(s), seed {result['seed']}, "
-             f"bring-up included, under cProfile",
+             f"bring-up included, under cProfile, hot modules as pure Python",
              f"simulated {result['sim_s']:.2f} s; profiled run {result['wall_s']:.2f} s wall, "
              f"{result['cpu_s']:.2f} s CPU; self time attributed {result['total_s']:.3f} s",
              "",
@@ -357,18 +368,38 @@ def table(result: Mapping[str, Any]) -> str:
 
 def write_profile(out_dir: str | os.PathLike, trials: int = 3, seed: int = 0) -> dict[str, Any]:
     """Profile a learning run (:func:`profile_learning`) and write :data:`FILES` into ``out_dir``
-    (made if missing); return what ``profile.json`` holds."""
+    (made if missing); return what ``profile.json`` holds. In a process running hot modules
+    compiled, the run is profiled in a pure-Python child process (the module's docstring)."""
     from controller.atomic import write_json_atomic, write_text_atomic
     from controller.errors import stamp
+    from protocol.compiled import PURE_PYTHON_ENV, compiled_modules
 
     out = Path(out_dir)
+    if compiled_modules():
+        return _write_profile_pure(out, trials, seed, PURE_PYTHON_ENV)
     profiler, run = profile_learning(trials, seed)
     stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]
-    result = {**stamp(PROFILE_KIND, PROFILE_VERSION), "profiler": "cProfile (perf_counter clock)", **run,
-              **summarize(stats)}
+    result = {**stamp(PROFILE_KIND, PROFILE_VERSION), "profiler": "cProfile (perf_counter clock)", "python": "pure",
+              **run, **summarize(stats)}
     out.mkdir(parents=True, exist_ok=True)
     profiler.dump_stats(str(out / "profile.pstats"))
     write_json_atomic(out / "profile.json", result)
     write_text_atomic(out / "profile.txt", table(result))
     log.info("wrote %s", ", ".join(str(out / f) for f in FILES))
     return result
+
+
+def _write_profile_pure(out: Path, trials: int, seed: int, pure_env: str) -> dict[str, Any]:
+    """:func:`write_profile` in a child process running every hot module as pure Python (this
+    module run as a script); its ``profile.json``, read back. The child's failure is this one's."""
+    env = {**os.environ, pure_env: "1"}
+    cmd = [sys.executable, "-m", __name__, str(out), str(trials), str(seed)]
+    done = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if done.returncode != 0:
+        tail = done.stderr.strip().splitlines()[-1:] or ["no message"]
+        raise RuntimeError(f"the pure-Python profile run failed (exit {done.returncode}): {tail[0]}")
+    return json.loads((out / "profile.json").read_text())
+
+
+if __name__ == "__main__":  # the child process of _write_profile_pure: OUT_DIR TRIALS SEED
+    write_profile(sys.argv[1], trials=int(sys.argv[2]), seed=int(sys.argv[3]))

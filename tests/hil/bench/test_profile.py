@@ -15,14 +15,8 @@ import pytest
 from controller.errors import check_stamp
 from hil.bench import profile as prof
 from hil.cli import main
-from protocol.compiled import compiled_modules
 
-MUST_HAVE_TIME = ("step_simulation", "controller", "firmware_sim", "bus")
-
-PLANT_COMPILED = "firmware_sim.plant" in compiled_modules()
-"""cProfile sees a builtin only where Python code calls it: with the plant compiled, no
-``pybullet.stepSimulation`` entry (its time is in its nearest caller that runs as Python)."""
-
+MUST_HAVE_TIME = ("step_simulation", "controller", "firmware_sim", "bus", "local_bus")
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
@@ -40,7 +34,9 @@ def test_a_one_trial_profile_writes_the_three_files(made):
     assert (data["trials"], data["seed"]) == (1, 0) and data["sim_s"] > 0
     assert data == json.loads(json.dumps(result))
     raw = pstats.Stats(str(out / "profile.pstats")).stats  # type: ignore[attr-defined]
-    assert PLANT_COMPILED or any(name == "<built-in method pybullet.stepSimulation>" for _, _, name in raw)
+    assert any(name == "<built-in method pybullet.stepSimulation>" for _, _, name in raw)
+    assert data["python"] == "pure"  # a compiled process profiles in a pure-Python child: cProfile sees every layer
+    assert any(file.endswith("firmware_sim/plant.py") for file, _, _ in raw)
     text = (out / "profile.txt").read_text()
     for layer in data["layers"].values():
         assert layer["label"] in text
@@ -58,8 +54,6 @@ def test_the_shares_sum_to_one_and_every_layer_is_listed(made):
 
 @pytest.mark.parametrize("key", MUST_HAVE_TIME)
 def test_the_layers_of_the_hot_path_have_time(made, key):
-    if key == "step_simulation" and PLANT_COMPILED:
-        pytest.skip("the compiled plant calls stepSimulation where cProfile does not see it")
     assert made[1]["layers"][key]["seconds"] > 0.0
 
 
@@ -71,9 +65,8 @@ def test_the_top_functions_are_thirty_in_order_with_their_layers(made):
     for f in top:  # each function's self time is handed out whole, to layers of the registry or other
         assert set(f["layers_s"]) <= {layer.key for layer in prof.LAYERS} | {prof.OTHER}
         assert math.isclose(sum(f["layers_s"].values()), f["self_s"], rel_tol=1e-9, abs_tol=1e-12)
-    if not PLANT_COMPILED:  # else cProfile does not see it
-        step = next(f for f in top if f["function"] == "<built-in method pybullet.stepSimulation>")
-        assert list(step["layers_s"]) == ["step_simulation"]
+    step = next(f for f in top if f["function"] == "<built-in method pybullet.stepSimulation>")
+    assert list(step["layers_s"]) == ["step_simulation"]
 
 
 # ---- the rules, on call graphs built by hand -------------------------------------------------------------------
@@ -205,3 +198,12 @@ def test_profile_trials_must_be_positive(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["bench", "--profile", str(tmp_path / "p"), "--profile-trials", "0"])
     assert exc.value.code == 2 and "argument --profile-trials:" in capsys.readouterr().err
+
+
+def test_a_failed_pure_python_child_is_one_line_naming_it(tmp_path):
+    (tmp_path / "a_file").write_text("mine")
+    with pytest.raises(RuntimeError) as exc:
+        prof._write_profile_pure(tmp_path / "a_file" / "p", 1, 0, "ELEGANT_STEPPING_PURE_PYTHON")
+    message = str(exc.value)
+    assert message.startswith("the pure-Python profile run failed (exit 1): ") and "\n" not in message
+    assert (tmp_path / "a_file").read_text() == "mine"
