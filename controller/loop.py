@@ -127,6 +127,7 @@ class ControlLoop:
         self._period_s = config.period_s
         self._late_period_s = config.late_factor * self._period_s
         self._max_dt_s = config.max_dt_factor * self._period_s
+        self._geometry = config.geometry  # read every tick (the config is a plain Python object)
         self.stats = LoopStats()
         self.last_cpg: CpgOutput | None = None
         self._last_tick_s = math.nan
@@ -394,7 +395,7 @@ class ControlLoop:
 
     def foot_height_m(self) -> float:
         """Foot height above the ground from the encoders (NaN before the first reading)."""
-        g = self.config.geometry
+        g = self._geometry
         _x, z = forward(g, self.hip.pos_rad, self.knee.pos_rad)
         return z + g.hip_height_m - g.foot_radius_m
 
@@ -426,7 +427,7 @@ class ControlLoop:
         self._was_flexing = out.flexing
         self.last_cpg = out
         x, z = self.trajectory.target(out)
-        hip, knee = inverse(self.config.geometry, x, z)
+        hip, knee = inverse(self._geometry, x, z)
         send = self.io.send
         send(self.hip.pos_frame(self._hip_muscle(hip, dt)))
         send(self.knee.pos_frame(self._knee_muscle(knee, dt)))

@@ -57,7 +57,7 @@ from __future__ import annotations
 import enum
 import logging
 import math
-from typing import ClassVar
+from typing import ClassVar, Final
 
 from controller.io.axis import AxisLink
 from controller.io.health import HealthConfig, health_fault
@@ -83,8 +83,9 @@ LIFECYCLE = {Phase.WAIT_NODES: "inactive", Phase.INACTIVE: "inactive", Phase.ARM
 """Each phase's lifecycle state, in ros2_control's words ("unconfigured" is the daemon before its
 bus is open: the loop never reports it)."""
 
-ACTIVE_PHASES = frozenset({Phase.ARMING, Phase.RAMP, Phase.WALK})
-"""The phases in which the axes are (being) armed."""
+ACTIVE_PHASES: Final = (Phase.ARMING, Phase.RAMP, Phase.WALK)
+"""The phases in which the axes are (being) armed. A tuple, not a set: ``in`` a tuple compares by
+identity, in C; ``in`` a set calls ``Enum.__hash__`` (Python code) on every test, every tick."""
 
 
 def error_text(bits: int) -> str:
@@ -102,6 +103,15 @@ def error_names(bits: int) -> list[str]:
 
 
 _KNOWN_ERRORS = int(sum(e.value for e in AxisError))
+# Bound once: a member read through its enum class goes through the metaclass's attribute hook
+# (about 1,000 instructions), and this one is read every tick.
+_CLOSED_LOOP: Final = AxisState.CLOSED_LOOP_CONTROL
+
+
+def _latest(a_s: float, b_s: float) -> float:
+    """``max(a_s, b_s)`` (the same choice: ``b_s`` only if greater), without the builtin's generic
+    call, which compiled boxes both floats (every tick)."""
+    return b_s if b_s > a_s else a_s
 
 
 class Supervisor:
@@ -161,8 +171,9 @@ class Supervisor:
     def _last_seen(self) -> list[tuple[str, float, float]]:
         """(node, last valid frame of any kind, last heartbeat) for every node [s]."""
         s = self.sensors
-        out = [(a.name, max(a.heartbeat_t_s, a.encoder_t_s), a.heartbeat_t_s) for a in self.axes]
-        out.append(("sensor_board", max(s.heartbeat_t_s, s.range_t_s, s.contacts_t_s, s.profile_t_s), s.heartbeat_t_s))
+        out = [(a.name, _latest(a.heartbeat_t_s, a.encoder_t_s), a.heartbeat_t_s) for a in self.axes]
+        board_s = _latest(_latest(_latest(s.heartbeat_t_s, s.range_t_s), s.contacts_t_s), s.profile_t_s)
+        out.append(("sensor_board", board_s, s.heartbeat_t_s))
         return out
 
     def silent_nodes(self, now_s: float) -> list[str]:
@@ -215,7 +226,7 @@ class Supervisor:
             if self._fault_if_silent(now_s):
                 return
             for a in self.axes:
-                if a.error and a.state is AxisState.CLOSED_LOOP_CONTROL:  # acted on in the tick it is drained
+                if a.error and a.state is _CLOSED_LOOP:  # acted on in the tick it is drained
                     self.fault(f"axis {a.name} reported {error_text(a.error)} in closed loop", now_s)
                     return
                 if not a.closed_loop:

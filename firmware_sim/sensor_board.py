@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Final, Protocol
 
 import can
 import numpy as np
@@ -46,11 +46,12 @@ from protocol.contract import CMD_ID_MASK, SENSOR_BOARD_NODE_ID, BusContract, ar
 from protocol.frame import data_frame
 from protocol.compiled import interpreted
 
-BOARD_STATE_RUNNING = 1
-_SCHEDULE_EPS_S = 1e-9
+# (Final: C constants when compiled, not a module-dict lookup per use)
+BOARD_STATE_RUNNING: Final = 1
+_SCHEDULE_EPS_S: Final = 1e-9
 _RANGE_RESOLUTION_MAX_M = 65.535  # 16 bits at 1 mm
-PROFILE_NO_RETURN_M = 65.535  # raw 0xFFFF in SB_Profile: dropout, nothing within range, or no beam
-PROFILE_SLOTS = 3  # beams in one SB_Profile frame
+PROFILE_NO_RETURN_M: Final = 65.535  # raw 0xFFFF in SB_Profile: dropout, nothing within range, or no beam
+PROFILE_SLOTS: Final = 3  # beams in one SB_Profile frame
 
 
 class SensorSource(Protocol):
@@ -159,7 +160,7 @@ class SensorBoard:
         self._hb_id = arbitration_id(self.node_id, self._hb_codec.cmd_id)
         self._profile_id = arbitration_id(self.node_id, self._profile_codec.cmd_id)
         names = [c.name for c in self._codecs.values()]
-        self.stats: dict = {
+        self.stats: dict[str, Any] = {
             "rx": {n: 0 for n in names},
             "tx": {n: 0 for n in names},
             "malformed": 0,
@@ -170,7 +171,7 @@ class SensorBoard:
             "range_invalid": 0,
             "profile_samples": 0,
         }
-        self._tx = self.stats["tx"]
+        self._tx: dict[str, int] = self.stats["tx"]
         self._range_seq = 0
         self._contacts_seq = 0
         self.last_range: tuple[float, int, int] = (0.0, 0, 0)

@@ -37,14 +37,14 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
-from typing import Callable, Mapping
+from typing import Callable, Final, Mapping
 
 import cantools
 
-SENSOR_BOARD_NODE_ID = 16
+SENSOR_BOARD_NODE_ID: Final = 16
 MASTER_NODE = "Controller"  # the DBC's name for the bus master: the messages only it sends
 NODE_ID_BITS = 6
-CMD_ID_MASK = 0x1F
+CMD_ID_MASK: Final = 0x1F
 MAX_NODE_ID = 0x3F
 MAX_STANDARD_ID = 0x7FF
 SIM_SYNC_ID = 0x1FFFFF00
@@ -147,7 +147,8 @@ class MessageCodec:
         # Hot-path helpers: the signal count and, for unpack, (index, scale, offset) of every
         # integer signal (converted to physical units; float signals pass through as decoded).
         self._n_signals = len(signals)
-        self._int_scaling = tuple((i, scale, offset) for i, scale, offset, _lo, _hi in self._int_fields)
+        self._int_scaling: tuple[tuple[int, float, float], ...] = tuple(
+            (i, scale, offset) for i, scale, offset, _lo, _hi in self._int_fields)
         self._pack_raw = self._struct.pack if self._struct is not None else None
         self._unpack_raw = self._struct.unpack_from if self._struct is not None else None
         # pack's integer signals: (index, scale, offset, lo, hi, exact). ``exact`` (scale 1, offset
@@ -249,7 +250,8 @@ class MessageCodec:
         # Convert only the integer signals in place (cheaper than a generator over every signal).
         values = list(raw)
         for i, scale, offset in self._int_scaling:
-            values[i] = values[i] * scale + offset
+            raw_i: int = values[i]  # (declared: compiled, the scaling is C arithmetic, the same floats)
+            values[i] = raw_i * scale + offset
         return tuple(values)
 
     def encode(self, **signals: float) -> bytes:

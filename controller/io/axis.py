@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from typing import Final
 
 import can
 
@@ -37,17 +38,21 @@ from protocol.endpoints import BY_ID as ENDPOINTS_BY_ID
 from protocol.endpoints import SDO_OPCODE_READ, SDO_OPCODE_WRITE, Endpoint
 from protocol.compiled import interpreted
 
-_F32 = struct.Struct("<f")
-_U32 = struct.Struct("<I")
-_F32_MAX = 3.4028234663852886e38
+# (Final: C globals when compiled, not a module-dict lookup per use)
+_F32: Final = struct.Struct("<f")
+_U32: Final = struct.Struct("<I")
+_F32_MAX: Final = 3.4028234663852886e38
+# Bound once: a member read through its enum class goes through the metaclass's attribute hook
+# (about 1,000 instructions), and closed_loop reads this one every tick.
+_CLOSED_LOOP: Final = AxisState.CLOSED_LOOP_CONTROL
 
 
 _KNOWN_ERRORS = int(sum(e.value for e in AxisError))  # every Axis_Error bit firmware 0.6 defines
 
 
-TWO_PI = 2.0 * math.pi
+TWO_PI: Final = 2.0 * math.pi
 
-MAX_BUS_VOLTAGE_V = 100.0
+MAX_BUS_VOLTAGE_V: Final = 100.0
 """A Get_Bus_Voltage_Current reading above this is a corrupted frame (ODrive S1/Pro: 12-48 V)."""
 
 
@@ -219,6 +224,8 @@ class AxisLink:
         self._min_jump_dt_s = feedback_limits.min_jump_dt_s
         self._jump_slack_rad = feedback_limits.jump_slack_rad
         self._pos_lo_rev, self._pos_hi_rev = self.pos_bounds_rev
+        self._min_rad: float = config.min_rad
+        self._max_rad: float = config.max_rad
         self._pos_tail_still = _input_pos_tail_still(self._pos)
         self.reset_feedback()
         self.clamped_targets = 0
@@ -263,6 +270,8 @@ class AxisLink:
     def on_encoder(self, values: tuple, now_s: float) -> bool:
         """Get_Encoder_Estimates: False (nothing applied) for an implausible reading (NaN,
         infinite, too fast, or too far outside the joint's range; see :class:`FeedbackLimits`)."""
+        pos_rev: float  # (declared: compiled, the arithmetic below is on C doubles, not boxed objects)
+        vel_rev_s: float
         pos_rev, vel_rev_s = values
         vmax = self._vel_max_rev_s
         if not -vmax <= vel_rev_s <= vmax:  # False for NaN too
@@ -312,24 +321,24 @@ class AxisLink:
 
     @property
     def closed_loop(self) -> bool:
-        return self.state == AxisState.CLOSED_LOOP_CONTROL and self.error == 0
+        return self.state == _CLOSED_LOOP and self.error == 0
 
     # -- commands ------------------------------------------------------------------------
     def clamp(self, q_rad: float) -> float:
         """``q_rad`` [rad] inside ``[min_rad, max_rad]``: a finite target outside goes to the nearest
         limit; a NaN or infinite one holds the last target (before any: the measured position, or
         0), clamped too. Each changed target is counted in ``clamped_targets``."""
-        c = self.config
-        if c.min_rad <= q_rad <= c.max_rad:
+        lo, hi = self._min_rad, self._max_rad  # the config's min_rad, max_rad
+        if lo <= q_rad <= hi:
             return q_rad
         if not math.isfinite(q_rad):
             # a NaN target is never sent: hold the last target (or the measured position)
             self.clamped_targets += 1
             fallback = self.last_target_rad if math.isfinite(self.last_target_rad) else self.pos_rad
-            return min(c.max_rad, max(c.min_rad, fallback if math.isfinite(fallback) else 0.0))
-        if q_rad < c.min_rad or q_rad > c.max_rad:
+            return min(hi, max(lo, fallback if math.isfinite(fallback) else 0.0))
+        if q_rad < lo or q_rad > hi:
             self.clamped_targets += 1
-            return c.min_rad if q_rad < c.min_rad else c.max_rad
+            return lo if q_rad < lo else hi
         return q_rad
 
     def pos_frame(self, q_rad: float, qd_rad_s: float = 0.0) -> can.Message:

@@ -22,13 +22,15 @@ to :mod:`controller.stepping.height`, not here.
 from __future__ import annotations
 
 import math
+from typing import Final
 
-PROFILE_NO_RETURN_M = 65.535  # SB_Profile's raw 0xFFFF at 1 mm: no return in that beam
-PROFILE_MAX_M = 3.0  # the profile beams' reach [m]; a closer-than-no-return reading beyond it is invalid
-RANGE_MAX_M = 3.0  # the range finder's reach [m] (the board clips its readings to it)
-_NO_RETURN_FROM_M = PROFILE_NO_RETURN_M - 0.0005  # half a raw step below the sentinel
-_HALF_MM = 0.0005  # half a raw step of SB_Range / SB_Profile (1 mm): decoding rounds within it
-MAX_SEQ_GAP = 16  # a sequence number further from the last than this is believed only once confirmed
+# (Final: C constants when compiled, not a module-dict lookup per use)
+PROFILE_NO_RETURN_M: Final = 65.535  # SB_Profile's raw 0xFFFF at 1 mm: no return in that beam
+PROFILE_MAX_M: Final = 3.0  # the profile beams' reach [m]; a closer-than-no-return reading beyond it is invalid
+RANGE_MAX_M: Final = 3.0  # the range finder's reach [m] (the board clips its readings to it)
+_NO_RETURN_FROM_M: Final = PROFILE_NO_RETURN_M - 0.0005  # half a raw step below the sentinel
+_HALF_MM: Final = 0.0005  # half a raw step of SB_Range / SB_Profile (1 mm): decoding rounds within it
+MAX_SEQ_GAP: Final = 16  # a sequence number further from the last than this is believed only once confirmed
 
 
 class SensorLink:

@@ -74,6 +74,12 @@ class RingOscillator:
 
     def __init__(self, config: CpgConfig) -> None:
         self.config = config
+        # the frozen config's times, read every tick, as typed attributes (compiled: C doubles, not
+        # an attribute lookup on the config, a plain Python object)
+        self._stance_s: float = config.stance_s
+        self._burst_min_s: float = config.burst_min_s
+        self._burst_max_s: float = config.burst_max_s
+        self._activation_tau_s: float = config.activation_tau_s
         self.n_half = config.units_per_half
         self.n_units = 2 * self.n_half
         self.burst_s = config.burst_s
@@ -90,15 +96,15 @@ class RingOscillator:
 
     def set_burst_s(self, burst_s: float) -> float:
         """Set the flexion burst length, clipped to the configured safe bounds; returns it."""
-        c = self.config
-        # min(c.burst_max_s, max(c.burst_min_s, burst_s)) without the calls (every tick), the same
-        # choices: max keeps its first argument unless the second is greater, min unless it is less
-        burst_s = burst_s if burst_s > c.burst_min_s else c.burst_min_s
-        self.burst_s = burst_s if burst_s < c.burst_max_s else c.burst_max_s
+        lo, hi = self._burst_min_s, self._burst_max_s
+        # min(hi, max(lo, burst_s)) without the calls (every tick), the same choices: max keeps its
+        # first argument unless the second is greater, min unless it is less
+        burst_s = burst_s if burst_s > lo else lo
+        self.burst_s = burst_s if burst_s < hi else hi
         return self.burst_s
 
     def _duration_s(self, unit: int) -> float:
-        half = self.config.stance_s if unit < self.n_half else self.burst_s
+        half = self._stance_s if unit < self.n_half else self.burst_s
         return half / self.n_half
 
     def step(self, dt_s: float) -> CpgOutput:
@@ -126,7 +132,7 @@ class RingOscillator:
                 onset = True
         self.active = active
         self.adaptation = adaptation
-        tau = self.config.activation_tau_s
+        tau = self._activation_tau_s
         k = 1.0 if tau <= 0.0 else dt_s / tau
         if not k < 1.0:  # min(1.0, dt_s / tau): 1.0 unless the quotient is less (NaN too)
             k = 1.0
@@ -137,4 +143,5 @@ class RingOscillator:
         flexing = active >= n_half
         phase = ((active % n_half) + adaptation) / n_half
         drive = self.amplitude * sum(rates[n_half:])
-        return CpgOutput(onset, flexing, phase, drive, self.step_index)
+        # CpgOutput(onset, ...) without its __new__, which is generated Python code (every tick)
+        return tuple.__new__(CpgOutput, (onset, flexing, phase, drive, self.step_index))

@@ -8,13 +8,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
 
 from controller.settings.schema import check_settings, setting
 from protocol.compiled import interpreted
 
-REACH = 0.999
+REACH: Final = 0.999
 """The farthest :func:`inverse` stretches the leg, as a fraction of thigh + shank (a fully
 straight knee is a singular pose)."""
+
+# math functions mypyc has no C version of, bound once (compiled: a C global, not a lookup of the
+# module's attribute on every call; sin and cos are C calls)
+_hypot: Final = math.hypot
+_acos: Final = math.acos
+_atan2: Final = math.atan2
 
 
 @interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
@@ -46,16 +53,16 @@ def inverse(geometry: LegGeometry, x_m: float, z_m: float) -> tuple[float, float
     result is always a valid pose (the loop's limit clamp is the last line of defence).
     """
     l1, l2 = geometry.thigh_m, geometry.shank_m
-    r = math.hypot(x_m, z_m)
+    r = _hypot(x_m, z_m)
     r_max = (l1 + l2) * REACH
     r_min = abs(l1 - l2) + 0.02
     if r > r_max or r < r_min:
         scale = (r_max if r > r_max else r_min) / max(r, 1e-9)
         x_m, z_m, r = x_m * scale, z_m * scale, min(max(r, r_min), r_max)
     cos_knee = (r * r - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
-    knee = -math.acos(max(-1.0, min(1.0, cos_knee)))
+    knee = -_acos(max(-1.0, min(1.0, cos_knee)))
     # angle of the foot direction measured from straight down, positive forward
-    alpha = math.atan2(x_m, -z_m)
-    beta = math.atan2(l2 * math.sin(-knee), l1 + l2 * math.cos(knee))
+    alpha = _atan2(x_m, -z_m)
+    beta = _atan2(l2 * math.sin(-knee), l1 + l2 * math.cos(knee))
     hip = alpha + beta
     return hip, knee

@@ -496,3 +496,24 @@ def test_the_watchdog_exchange_keeps_its_first_deadline_and_checks_every_axis_at
     sup.expect_watchdog(hip, 0.1, t0 + 0.5)
     assert sup.check_watchdog_confirmations(t0 + 1.0) == [hip] and sup.phase is Phase.ARMING  # 0.5 s: not past
     assert sup.check_watchdog_confirmations(t0 + 1.0001) == [] and sup.phase is Phase.FAULT
+
+
+def test_latest_chooses_as_builtin_max_does_bit_for_bit():
+    """_latest (the supervisor's max of two times, without the builtin's call) keeps its first
+    argument unless the second is greater: NaN, infinities and signed zeros included."""
+    import itertools
+    import struct
+
+    from controller.supervisor import _latest
+
+    values = [math.nan, -math.inf, math.inf, 0.0, -0.0, 1.0, 1.5, -2.0]
+    for a, b in itertools.product(values, repeat=2):
+        assert struct.pack("<d", _latest(a, b)) == struct.pack("<d", max(a, b)), (a, b)
+    for a, b, c, d in itertools.product(values[:5], repeat=4):
+        assert struct.pack("<d", _latest(_latest(_latest(a, b), c), d)) == struct.pack("<d", max(a, b, c, d))
+
+
+def test_active_phases_are_arming_ramp_and_walk():
+    from controller.supervisor import ACTIVE_PHASES
+
+    assert {p for p in Phase if p in ACTIVE_PHASES} == {Phase.ARMING, Phase.RAMP, Phase.WALK}

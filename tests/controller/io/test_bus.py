@@ -468,3 +468,24 @@ def test_frames_from_another_master_are_counted_per_id_and_bus_voltage_is_read()
         io.drain(0.6)
     assert hip.bus_voltage_v == pytest.approx(24.5) and io.dropped["invalid"] == 3
     assert frames_add_up(io)
+
+
+def test_the_counters_are_counters_whose_assignment_is_dicts_own():
+    """BusIO's counters (Tally) count as collections.Counter does; only ``del`` differs (dict's:
+    a missing key raises), which is what keeps ``c[k] += 1`` on dict's C slot."""
+    from collections import Counter
+
+    from controller.io.bus import Tally
+
+    io, bus, (hip, _knee), _ = make_io()
+    for counts in (io.rx, io.tx, io.dropped, io.bus_events, io.foreign):
+        assert type(counts) is Tally and isinstance(counts, Counter)
+    t = Tally()
+    t["a"] += 1
+    t["a"] += 2
+    assert t["a"] == 3 and t["missing"] == 0 and "missing" not in t and t == Counter(a=3)
+    del t["a"]
+    assert t == {}
+    with pytest.raises(KeyError):
+        del t["a"]
+    assert Tally.__delitem__ is dict.__delitem__
