@@ -56,8 +56,10 @@ class LegHardware:
 
 class SimulatedLeg:
     def __init__(self, bus: can.BusABC, *, rig: RigConfig = RigConfig(), hardware: LegHardware = LegHardware(),
-                 seed: int = 0, gui: bool = False) -> None:
-        self.plant = RigPlant(rig, gui=gui)
+                 seed: int = 0, gui: bool = False, plant_class: type[RigPlant] = RigPlant) -> None:
+        """``plant_class``: the plant's class, :class:`RigPlant` or a subclass (the physics floor's
+        recording plant, :mod:`hil.bench.physics_floor`); built as ``plant_class(rig, gui=gui)``."""
+        self.plant = plant_class(rig, gui=gui)
         self.hardware = hardware
         self.axes: dict[str, SimOdriveAxis] = {}
         wiring = (

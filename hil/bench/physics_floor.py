@@ -104,20 +104,20 @@ class _Stop(Exception):
 class _RecordingPlant(RigPlant):
     """The plant of a recording run: every method the stack uses, the plant's own, noted.
 
-    Built by :class:`_RecordingLockstep` with the plant's own constructor (what happens in it, a
-    reset, is not noted: the replay's plant is built the same way). A Python subclass of the
+    Built by the leg of a :class:`_RecordingLockstep` (its ``plant_class``) with the plant's own
+    constructor (what happens in it, a reset, is not noted: the replay's plant is built the same way). A Python subclass of the
     compiled plant (``RigPlant`` allows them): the compiled stack's calls on it reach these methods
     (mypyc gives a Python subclass's instances a table of calls through Python). Queries are noted
     when they return (a range ray reads the rail first, so the rail is noted first); events only at
     the outermost call (a rewind sets the rail speed itself)."""
 
-    def __init__(self, config: RigConfig) -> None:
+    def __init__(self, config: RigConfig, *, gui: bool = False) -> None:
         self._rec_ops: list[list[tuple]] = [[]]
         self._rec_since_event: set[str] = set()
         self._rec_depth = 1  # the constructor's own reset is not an event of the run
         self._rec_torques: list[tuple[float, float]] = []
         self._rec_states: list[tuple] = []
-        super().__init__(config)
+        super().__init__(config, gui=gui)
         self._rec_depth = 0
 
     def _note_query(self, name: str) -> None:
@@ -200,28 +200,13 @@ class _RecordingPlant(RigPlant):
 
 
 class _RecordingLockstep(Lockstep):
-    """The harness of a recording run: a :class:`Lockstep` whose leg runs on a
-    :class:`_RecordingPlant`.
-
-    The leg (``firmware_sim.leg.SimulatedLeg``) builds its own plant; this harness builds a
-    recording plant of the same configuration beside it, before anything has stepped or read it,
-    gives it to every holder of the first (the leg, each axis's motor, the sensor board), and closes
-    the first (a holder missed would fail loudly: its plant is disconnected). The two worlds are
-    built by the same constructor from the same configuration: nothing of the run differs (the
-    recorded states are checked against an unrecorded run's by :func:`measure`)."""
+    """The harness of a recording run: a :class:`Lockstep` whose leg is built on a
+    :class:`_RecordingPlant` (the leg's ``plant_class``), the same constructor and configuration as
+    an unrecorded run's plant (the recorded states are checked against an unrecorded run's by
+    :func:`measure`)."""
 
     def __init__(self, config: LockstepConfig, **kwargs: Any) -> None:
-        super().__init__(config, **kwargs)
-        leg: Any = self.leg
-        first = leg.plant
-        if type(first) is not RigPlant:
-            raise TypeError(f"can record only a RigPlant, got {type(first).__name__}")
-        plant = _RecordingPlant(config.rig)
-        leg.plant = plant
-        for axis in leg.axes.values():
-            axis.motor.plant = plant
-        leg.board.source = plant
-        first.close()
+        super().__init__(config, plant_class=_RecordingPlant, **kwargs)
 
 
 def _learning_run(seed: int, recording: bool) -> Any:

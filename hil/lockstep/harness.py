@@ -98,17 +98,19 @@ class LegHarness:
 class Lockstep(LegHarness):
     """``bus``: the in-process bus, a name of :data:`hil.lockstep.localbus.BUSES` (default
     ``"local"``, python-can's ``BusABC`` without copies, locks or clock reads; ``"virtual"`` is
-    python-can's own; both give the same run)."""
+    python-can's own; both give the same run). ``plant_class``: the leg's plant class (default
+    :class:`RigPlant`; the physics floor records through a subclass)."""
 
     def __init__(self, config: LockstepConfig = LockstepConfig(), *, premotor: Premotor | None = None,
-                 gui: bool = False, bus: str = "local") -> None:
+                 gui: bool = False, bus: str = "local", plant_class: type[RigPlant] = RigPlant) -> None:
         self.config = config
         channel = f"lockstep-{uuid.uuid4().hex}-{next(_channel_counter)}"
         self.channel = channel
         self._make_bus: Callable[[str], can.BusABC] = BUSES[bus]
         self.firmware_bus: can.BusABC = self._make_bus(channel)
         self.controller_bus: can.BusABC = self._make_bus(channel)  # SyncedLockstep puts its own
-        self.leg = SimulatedLeg(self.firmware_bus, rig=config.rig, hardware=config.hardware, seed=config.seed, gui=gui)
+        self.leg = SimulatedLeg(self.firmware_bus, rig=config.rig, hardware=config.hardware, seed=config.seed, gui=gui,
+                                plant_class=plant_class)
         self.loop = ControlLoop(config.controller, self.controller_bus, premotor=premotor)
         self.ticks_per_control = int(round(config.rig.physics_hz / config.controller.rate_hz))
         self.physics_steps = 0

@@ -105,8 +105,8 @@ def test_bench_reports_the_floor_and_no_figure_of_another_motion(monkeypatch):
 
 
 def test_the_recording_run_records_on_the_plant_every_part_of_the_leg_holds():
-    """The recording harness gives its recording plant to every holder of the leg's first plant
-    (closed: a holder missed would fail loudly), built as the plant is, its construction not noted."""
+    """The recording harness's leg is built on the recording plant (its ``plant_class``): every part
+    of the leg holds that one plant, built as the plant is, its construction not noted."""
     from firmware_sim.plant import RigPlant
 
     run = pf._learning_run(0, recording=True)
