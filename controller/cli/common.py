@@ -254,6 +254,21 @@ def _file_error(exc: OSError) -> str:
     return f"{where}: {why}" if where else why
 
 
+BLAS_THREADS_ENV = "OPENBLAS_NUM_THREADS"
+
+
+def single_threaded_blas() -> None:
+    """One BLAS thread unless the environment says otherwise (``OPENBLAS_NUM_THREADS``, which
+    numpy's OpenBLAS reads when numpy is first imported, so this runs before any verb imports it).
+
+    The stack's only matrices are the range filter's 2x2 and 1x1 (filterpy): a BLAS thread pool
+    never helps them and costs: OpenBLAS's idle workers spin after each call (about 1.3% of a
+    learning run's CPU on a 2-core machine, issue 17), on the leg's computer a thread beside the
+    control loop; sweep workers inherit the setting (no oversubscription). Results are the same
+    (matrices this small are never split across threads)."""
+    os.environ.setdefault(BLAS_THREADS_ENV, "1")
+
+
 def main(prog: str, description: str, verbs: Sequence[Verb], argv: Sequence[str] | None = None) -> int:
     """Parse ``argv``, set up logging, check the verb's extras, run it; its exit code
     (:mod:`controller.errors`). An expected failure is one line on stderr; a bug is a traceback
@@ -267,6 +282,7 @@ def main(prog: str, description: str, verbs: Sequence[Verb], argv: Sequence[str]
     itself); anything else, an ``OSError`` about no path included -> 70 with the traceback."""
     from controller.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_MISSING, EXIT_OK, CliError
 
+    single_threaded_blas()
     name = prog
     try:
         parser = build_parser(prog, description, verbs)

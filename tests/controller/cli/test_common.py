@@ -219,3 +219,16 @@ def test_a_warning_is_one_line_naming_the_program_and_verb(capsys):
     args = argparse.Namespace(_prog="elegant-stepping", _verb=common.Verb("decode", "m", "h"))
     common.warn(args, "bus.blf: read 7 frames,\n stopped at frame 8")
     assert capsys.readouterr().err == "elegant-stepping decode: warning: bus.blf: read 7 frames, stopped at frame 8\n"
+
+
+def test_a_command_sets_one_blas_thread_unless_the_environment_chose(monkeypatch):
+    """Before any verb imports numpy (OpenBLAS reads the variable when it loads); an explicit
+    setting is the user's and stays."""
+    monkeypatch.delenv(common.BLAS_THREADS_ENV, raising=False)
+    with pytest.raises(SystemExit):
+        leg_main(["--help"])
+    assert os.environ[common.BLAS_THREADS_ENV] == "1"
+    monkeypatch.setenv(common.BLAS_THREADS_ENV, "4")
+    common.single_threaded_blas()
+    assert os.environ[common.BLAS_THREADS_ENV] == "4"
+
