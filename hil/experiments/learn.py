@@ -140,7 +140,7 @@ class LearningRun:
                                                       self._true_distance_m)
         self.ls = harness(config.lockstep(), premotor=premotor)
         self.rng = np.random.default_rng(config.seed)
-        self.tracker = FootfallTracker(self.ls.plant)
+        self.tracker = FootfallTracker(self.ls.plant, clearance=False)  # no clearance in a trial's record
         self.trials: list[dict[str, Any]] = []
         self.last_times: dict[str, float] = {}
         """The simulated times [s] of the last trial: its start (``t0_s``), the first footfall beyond

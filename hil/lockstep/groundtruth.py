@@ -12,9 +12,16 @@ import math
 
 
 class FootfallTracker:
-    def __init__(self, plant, min_air_s: float = 0.04) -> None:
+    """``plant``: the :class:`~firmware_sim.plant.RigPlant` watched. ``min_air_s``: the debounce
+    [s], default 0.04. ``clearance``: record the foot's height at every physics step in the air, for
+    ``swing_clearance_m`` (default True); one ``getLinkState`` a step in the air (a third of the
+    run's steps, ~40k instructions of PyBullet's each): a run that reports no clearance (``learn``)
+    turns it off, and its footfalls are the same."""
+
+    def __init__(self, plant, min_air_s: float = 0.04, *, clearance: bool = True) -> None:
         self.plant = plant
         self.min_air_s = min_air_s
+        self.clearance = clearance
         self.footfalls_x_m: list[float] = []
         self.touchdown_t_s: list[float] = []
         self.swing_clearance_m: list[float] = []
@@ -43,7 +50,8 @@ class FootfallTracker:
                 self._swing = []
             else:
                 return
-        self._swing.append((t, plant.foot_position()[1]))
+        if self.clearance:
+            self._swing.append((t, plant.foot_position()[1]))
 
     def _close_swing(self, t_touchdown: float) -> None:
         t0 = self._liftoff_s
