@@ -30,7 +30,6 @@ from typing import Final
 
 import can
 
-from controller.io.health import plausible_temperature
 from controller.settings.schema import REQUIRED, check_settings, setting
 from protocol import SENSOR_BOARD_NODE_ID, AxisError, AxisState, BusContract, ControlMode, InputMode, data_frame
 from protocol.contract import sdo_bits_value, sdo_value_bits
@@ -54,6 +53,12 @@ TWO_PI: Final = 2.0 * math.pi
 
 MAX_BUS_VOLTAGE_V: Final = 100.0
 """A Get_Bus_Voltage_Current reading above this is a corrupted frame (ODrive S1/Pro: 12-48 V)."""
+
+
+def plausible_temperature(value: float) -> bool:
+    """A thermistor reading a frame may carry: -60..300 C (NaN, "no thermistor", is handled apart).
+    (Frame validation, so here; the thresholds that stop the leg are :mod:`controller.io.health`'s.)"""
+    return -60.0 <= value <= 300.0 and math.isfinite(value)
 
 
 @interpreted  # a configuration: plain Python even when compiled (protocol.compiled)

@@ -19,15 +19,11 @@ not checked).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
+from controller.io.axis import AxisLink
 from controller.settings.schema import check_settings, setting
 from protocol.compiled import interpreted
-
-if TYPE_CHECKING:  # controller.io.axis imports this module
-    from controller.io.axis import AxisLink
 
 
 @interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
@@ -84,9 +80,4 @@ def health_fault(config: HealthConfig, axis: AxisLink) -> str | None:
     return None
 
 
-def plausible_temperature(value: float) -> bool:
-    """A thermistor reading a frame may carry: -60..300 C (NaN, "no thermistor", is handled apart)."""
-    return -60.0 <= value <= 300.0 and math.isfinite(value)
-
-
-__all__ = ["HealthConfig", "health_fault", "plausible_temperature"]
+__all__ = ["HealthConfig", "health_fault"]
