@@ -169,6 +169,9 @@ def setup_files(tmp: Path) -> None:
     (tmp / "deep.toml").write_text("x = " + "[" * 500 + "]" * 500 + "\n")
     (tmp / "not_toml.toml").write_text("[bus\nchannel = \n")
     (tmp / "unit.service").write_text("[Service]\nExecStart=/bin/true\n")
+    (tmp / "experiment_unknown_key.toml").write_text("rail_speed_m_s = 0.6\nrail_sped_m_s = 0.4\n")
+    (tmp / "experiment_wrong_type.toml").write_text('range_dropout = "often"\n')
+    (tmp / "experiment_bad_height.toml").write_text("obstacle_heights_m = [0.06, 0.25]\n")
 
 
 # -- the rows ----------------------------------------------------------------------------------------
@@ -344,6 +347,22 @@ ROWS: tuple[Row, ...] = (
         ("learn", "--trials", "1", "--out", "{tmp}/a_file"), 3, ("--out", "a_file"), keep=("a_file",), owner="A"),
     Row("learn_seed_negative", "learn --seed -5", ("learn", "--seed", "-5", "--out", "{tmp}/learn"), 2, ("--seed",),
         owner="A"),
+    Row("learn_start_reversed", "learn --start-m 3,2 (MIN above MAX)",
+        ("learn", "--start-m", "3,2", "--out", "{tmp}/learn"), 2, ("--start-m", "MIN must not exceed MAX")),
+    Row("learn_heights_bad_value", "learn --obstacle-heights-m with a height out of range",
+        ("learn", "--obstacle-heights-m", "0.06,0.25", "--out", "{tmp}/learn"), 2,
+        ("--obstacle-heights-m", "0.25", "[0.03, 0.2] m")),
+    Row("learn_experiment_unknown_key", "an experiment TOML with an unknown key (a typo)",
+        ("learn", "--experiment", "{tmp}/experiment_unknown_key.toml", "--out", "{tmp}/learn"), 3,
+        ("experiment_unknown_key.toml", "rail_sped_m_s", "unknown key")),
+    Row("learn_experiment_wrong_type", "an experiment TOML with a value of the wrong type",
+        ("learn", "--experiment", "{tmp}/experiment_wrong_type.toml", "--out", "{tmp}/learn"), 3,
+        ("experiment_wrong_type.toml", "range_dropout", "not a string")),
+    Row("learn_experiment_missing", "learn --experiment naming no file",
+        ("learn", "--experiment", "{tmp}/nothere.toml", "--out", "{tmp}/learn"), 3, ("nothere.toml", "no such file")),
+    Row("sweep_experiment_bad_height", "a sweep's experiment TOML with a height out of range",
+        ("sweep", "--experiment", "{tmp}/experiment_bad_height.toml", "--out", "{tmp}/sweep", "--quiet"), 3,
+        ("experiment_bad_height.toml", "obstacle_heights_m", "0.25")),
     Row("sweep_other_configuration", "a sweep into a folder of another configuration (nothing deleted)",
         ("sweep", "--out", "{tmp}/sweep", "--seeds", "0", "--methods", "none", "--trials", "2", "--quiet"), 3,
         ("{tmp}/sweep",), keep=("sweep/summary.json",), owner="A"),

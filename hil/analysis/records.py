@@ -16,6 +16,11 @@ file that is missing is a ``FileNotFoundError``; one that is not JSON, of an unk
 ``learn-metrics`` version or of the wrong structure is an :class:`controller.errors.InputError`
 naming it. Numbers compare as JSON writes them: NaN equals NaN (the same record), 0.0 and -0.0
 differ.
+
+Additions: a field that the second (newer) run records and the first does not (a trial field a
+later version added) is an *addition*, listed in ``added_fields`` (paths with ``[*]`` for list
+indices), not a difference: the fields both record decide "same". A field only in the first is
+a difference (the newer run lost it).
 """
 
 from __future__ import annotations
@@ -101,11 +106,36 @@ def first_difference(a: Any, b: Any, where: str = "") -> str | None:
 _first_difference = first_difference  # the older private name
 
 
+def split_additions(old: Any, new: Any, where: str = "", found: list[str] | None = None) -> tuple[Any, list[str]]:
+    """``new`` without the dict keys that ``old`` lacks at the same place, and those keys' paths
+    (``.trials[*].field``, each once, in order of first sight); lists are walked item by item."""
+    found = [] if found is None else found
+    if isinstance(old, dict) and isinstance(new, dict):
+        kept = {}
+        for key, value in new.items():
+            if key not in old:
+                path = f"{where}.{key}"
+                if path not in found:
+                    found.append(path)
+                continue
+            kept[key] = split_additions(old[key], value, f"{where}.{key}", found)[0]
+        return kept, found
+    if isinstance(old, list) and isinstance(new, list):
+        items = [split_additions(x, y, f"{where}[*]", found)[0] for x, y in zip(old, new)]
+        return items + new[len(old):], found
+    return new, found
+
+
 def compare(first: Any, second: Any) -> dict[str, Any]:
-    """``{"kind", "same", "trials", "differing_trials", "first_difference"}`` of two runs' JSON."""
+    """``{"kind", "same", "trials", "differing_trials", "first_difference", "added_fields"}`` of
+    two runs' JSON (``second`` the newer: its additions are listed, not differences)."""
     if (isinstance(first, dict) and isinstance(second, dict) and isinstance(first.get("trials"), list)
             and isinstance(second.get("trials"), list)):
-        a, b = first["trials"], second["trials"]
+        added: list[str] = []
+        a = first["trials"]
+        b = split_additions(a, second["trials"], ".trials", added)[0]
+        second = {**second, "summary": split_additions(first.get("summary"), second.get("summary"), ".summary",
+                                                       added)[0]}
         differing = [i for i, (x, y) in enumerate(zip(a, b)) if not _same(_strip(x, False), _strip(y, False))]
         if len(a) != len(b):
             differing.append(min(len(a), len(b)))
@@ -113,6 +143,8 @@ def compare(first: Any, second: Any) -> dict[str, Any]:
         diff = first_difference(_strip({"trials": a, "summary": first.get("summary")}),
                                 _strip({"trials": b, "summary": second.get("summary")}))
         return {"kind": "learn", "same": not differing and summary, "trials": [len(a), len(b)],
-                "differing_trials": differing, "summary_same": summary, "first_difference": diff}
-    diff = first_difference(_strip(first), _strip(second))
-    return {"kind": "json", "same": diff is None, "first_difference": diff}
+                "differing_trials": differing, "summary_same": summary, "first_difference": diff,
+                "added_fields": added}
+    newer, added = split_additions(_strip(first), _strip(second))
+    diff = first_difference(_strip(first), newer)
+    return {"kind": "json", "same": diff is None, "first_difference": diff, "added_fields": added}

@@ -4,6 +4,10 @@ The run folder survives stops (docs/runs.md): each trial is appended to ``DIR/tr
 it finishes; the same command again resumes a stopped run, says so and exits 0 for a finished
 one, and refuses a folder of another configuration unless ``--overwrite``. SIGINT and SIGTERM stop
 the run with one line and exit 130; the finished trials are kept.
+
+The experimental conditions (rail speeds, start distances, sensor noise and dropout, obstacle
+depth and heights) are options and keys of ``--experiment FILE``, declared once in
+:mod:`hil.experiments.conditions` (docs/runs.md); a folder of another experiment is refused.
 """
 
 from __future__ import annotations
@@ -12,6 +16,20 @@ import argparse
 import sys
 
 from controller.cli.common import non_negative, positive, sigterm_as_sigint
+
+
+def _one_height(text: str) -> tuple[float]:
+    """``--obstacle-height-m H``: one height, checked as an item of ``--obstacle-heights-m``."""
+    from hil.experiments.conditions import SETTINGS
+
+    try:
+        number = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"obstacle_height_m: {text!r} is not a number") from None
+    value, problem = SETTINGS["obstacle_heights_m"]._number(number, float)
+    if problem:
+        raise argparse.ArgumentTypeError(f"obstacle_height_m: {text!r} {problem}")
+    return (value,)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,10 +45,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run folder: trials.jsonl, weights.npz, metrics.json, figures/ (a stopped run in it resumes)")
     p.add_argument("--overwrite", action="store_true",
                    help="clear a learn run of another configuration from --out first (never other files)")
-    p.add_argument("--obstacle-height-m", type=positive(float), default=0.08, help="obstacle height [m] (0.08)")
-    p.add_argument("--obstacle-depth-m", type=positive(float), default=0.10, help="obstacle depth [m] (0.10)")
-    p.add_argument("--range-noise-m", type=non_negative(float), default=0.02,
-                   help="range sensor noise, 1 sigma [m] (0.02)")
+    from hil.experiments.conditions import add_arguments as add_conditions
+
+    p.add_argument("--obstacle-height-m", type=_one_height, default=None,
+                   metavar="H", help="one obstacle height for every trial [m] (= --obstacle-heights-m H; default 0.08)")
+    add_conditions(p, helps={"obstacle_heights_m": "obstacle heights [m], comma list: each trial's drawn from it "
+                                                    "(seeded) if several; each in [0.03, 0.2] m, not 0.03 "
+                                                    "(default 0.08)"})
     p.add_argument("--no-learning", action="store_true", help="freeze the weights at zero (the baseline)")
     p.add_argument("--no-figures", action="store_true", help="skip DIR/figures/")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -46,18 +67,22 @@ def describe(config, summary: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.errors import EXIT_INTERRUPTED
+    from controller.errors import EXIT_INTERRUPTED, InputError
+    from hil.experiments.conditions import conditions_from
     from hil.experiments.journal import prepare_folder
 
+    if args.obstacle_height_m is not None:
+        if args.obstacle_heights_m is not None:
+            raise InputError("--obstacle-height-m and --obstacle-heights-m: give one of them")
+        args.obstacle_heights_m = args.obstacle_height_m
+    conditions = conditions_from(args)  # defaults < --experiment FILE < options (a bad file: exit 3)
     prepare_folder(args.out, "--out", create=False)  # before anything else (no simulation imported yet)
     from hil.experiments.learn import FIGURE_TRACES, LearnConfig, RunStopped, learn_into
 
     config = LearnConfig(
         trials=args.trials,
         seed=args.seed,
-        obstacle_height_m=args.obstacle_height_m,
-        obstacle_depth_m=args.obstacle_depth_m,
-        range_noise_m=args.range_noise_m,
+        **conditions.learn_fields(),
         learning=not args.no_learning,
         method=args.method,
         trace_trials=FIGURE_TRACES,

@@ -3,6 +3,10 @@
 A sweep cannot lose results (docs/runs.md): the same command again resumes it (finished cells
 are kept, stopped cells resume from their trial records); a folder of another sweep configuration
 is refused unless ``--overwrite``; SIGINT and SIGTERM stop the workers too and exit 130.
+
+The experimental conditions are ``learn``'s (:mod:`hil.experiments.conditions`, ``--experiment
+FILE`` too), every cell runs them; ``--obstacle-heights-m`` stays the grid (``--mixed-heights``:
+one scenario drawing per trial).
 """
 
 from __future__ import annotations
@@ -33,12 +37,6 @@ def _seeds(text: str) -> tuple[int, ...]:
     return parse_seeds(text)
 
 
-def _heights(text: str) -> tuple[float, ...]:
-    from hil.experiments.sweep import parse_heights
-
-    return parse_heights(text)
-
-
 def _methods(text: str) -> tuple[str, ...]:
     from hil.experiments.methods import METHODS
     from hil.experiments.sweep import parse_methods
@@ -58,8 +56,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "without it)")
     p.add_argument("--seeds", type=_option(_seeds), default="0-9",
                    help="seeds: a list 0,1,2 and/or ranges 0-9 (default 0-9)")
-    p.add_argument("--obstacle-heights-m", type=_option(_heights), default="0.08",
-                   help="obstacle heights [m], comma list (0.08)")
+    from hil.experiments.conditions import add_arguments as add_conditions
+
+    add_conditions(p, helps={"obstacle_heights_m": "obstacle heights [m], comma list: the grid, one scenario each "
+                                                    "(with --mixed-heights, one scenario drawing per trial); each in "
+                                                    "[0.03, 0.2] m, not 0.03 (default 0.08)"})
     p.add_argument("--mixed-heights", action="store_true",
                    help="one scenario in which each trial draws its height from the list")
     from hil.experiments.methods import DEFAULT_SWEEP_METHODS, METHODS
@@ -86,14 +87,18 @@ def run(args: argparse.Namespace) -> int:
         return 0
     from hil.experiments.journal import prepare_folder
 
+    from hil.experiments.conditions import conditions_from
+
+    conditions = conditions_from(args)  # defaults < --experiment FILE < options (a bad file: exit 3)
     prepare_folder(args.out, "--out", create=False)  # before any work (Path("") would be the current folder)
     config = SweepConfig(
         out_dir=Path(args.out),
         seeds=args.seeds,
-        obstacle_heights_m=args.obstacle_heights_m,
+        obstacle_heights_m=conditions.obstacle_heights_m,
         methods=args.methods,
         trials=args.trials,
         mixed_heights=args.mixed_heights,
+        conditions=conditions,
         dask=args.dask,
         **({} if args.workers is None else {"workers": args.workers}),
     )

@@ -38,9 +38,10 @@ from controller.stepping.learner import AdaptivePremotor
 from controller.supervisor import Phase
 from controller.stepping.weights import WeightsError, read_weights, save_weights
 from firmware_sim.leg import LegHardware
-from firmware_sim.plant import Obstacle
+from firmware_sim.plant import Obstacle, RigConfig
 from hil.analysis.metrics import (METRICS_FILE, METRICS_FORMAT, footfall_std_by_step, last_window, mistakes_101_150,
                                   read_metrics, window_success)
+from hil.experiments.conditions import Conditions
 from hil.experiments.journal import (LOCK_FILE, TRIALS_FILE, FolderLock, Journal, JournalWriter, prepare_folder,
                                      read_journal)
 from hil.lockstep.groundtruth import FootfallTracker
@@ -67,6 +68,10 @@ class LearnConfig:
         obstacle_depth_m: obstacle extent along the rail [m]; default 0.10.
         range_noise_m: range sensor noise, one standard deviation [m]; default 0.02.
         range_dropout_prob: probability that a range sample is a dropout; default 0.05.
+        rail_speed_m_s: the plant's rail (carriage) speed [m/s]; default 0.5.
+        believed_rail_speed_m_s: the rail speed the controller is told [m/s]: it sets
+            ``controller.gait.ground_speed_m_s`` (which a caller's controller configuration thus
+            cannot set apart from it); None (default): the plant's, stored as that number.
         start_min_m, start_max_m: the obstacle's near edge ahead of the hip when a trial begins
             [m]; uniform, default 2.2-2.9 (two strides of spread, inside the sensor's 3 m).
         past_obstacle_m: a trial ends when the hip is this far past the far edge [m]; 0.45.
@@ -79,6 +84,14 @@ class LearnConfig:
             negative indices count from the end; default none.
         trace_rate_hz: sample rate of a trace [Hz]; default 100.
         controller: the controller's configuration (its ``auto_arm`` is set: a run arms by itself).
+            Its range filter's assumed noise (``range_filter.noise_m``) is its own setting, not
+            ``range_noise_m``: a sensor noisier than the filter assumes can be tried.
+
+    The experimental conditions among these fields (heights, depth, noise, dropout, start range,
+    rail speeds) are declared, with their units and ranges, and checked once, in
+    :class:`hil.experiments.conditions.Conditions`; the run keeps them in its header (this
+    configuration, in ``trials.jsonl``'s first line and ``metrics.json``), the per-trial draws
+    (height, start distance) in each trial's record: why, in that module's docstring.
     """
 
     trials: int = 150
@@ -88,6 +101,8 @@ class LearnConfig:
     obstacle_depth_m: float = 0.10
     range_noise_m: float = 0.02
     range_dropout_prob: float = 0.05
+    rail_speed_m_s: float = 0.5
+    believed_rail_speed_m_s: float | None = None
     start_min_m: float = 2.2
     start_max_m: float = 2.9
     past_obstacle_m: float = 0.45
@@ -104,27 +119,27 @@ class LearnConfig:
             object.__setattr__(self, "learning", False)
         if not 1 <= self.trials <= 100000:
             raise ValueError(f"trials must be in [1, 100000], got {self.trials}")
-        for h in (self.obstacle_height_m, *self.obstacle_heights_m):
-            if not 0.03 < h <= 0.20:
-                raise ValueError(f"obstacle_height_m must be in (0.03, 0.20] m (the sensor sees above 3 cm), got {h}")
-        if not 0.01 <= self.obstacle_depth_m <= 0.30:
-            raise ValueError(f"obstacle_depth_m must be in [0.01, 0.30] m, got {self.obstacle_depth_m}")
-        if not 0.0 <= self.range_noise_m <= 0.5:
-            raise ValueError(f"range_noise_m must be in [0, 0.5] m, got {self.range_noise_m}")
+        object.__setattr__(self, "obstacle_heights_m", tuple(self.obstacle_heights_m))
+        if self.believed_rail_speed_m_s is None:  # told the truth: stored as the number it is
+            object.__setattr__(self, "believed_rail_speed_m_s", self.rail_speed_m_s)
+        if self.controller.gait.ground_speed_m_s != self.believed_rail_speed_m_s:  # what the controller is told
+            gait = replace(self.controller.gait, ground_speed_m_s=self.believed_rail_speed_m_s)
+            object.__setattr__(self, "controller", replace(self.controller, gait=gait))
+        Conditions.of_learn(self)  # the conditions' declared ranges (ValueError naming the condition)
         if not 1.0 <= self.trace_rate_hz <= 1000.0:
             raise ValueError(f"trace_rate_hz must be in [1, 1000] Hz, got {self.trace_rate_hz}")
-        if not 0.5 <= self.start_min_m <= self.start_max_m <= 3.2:
-            raise ValueError(f"need 0.5 <= start_min_m <= start_max_m <= 3.2 m, got {self.start_min_m}, "
-                             f"{self.start_max_m}")
 
     def lockstep(self) -> LockstepConfig:
+        """The plant's and the controller's configuration: the sensor's true noise and dropout and
+        the plant's rail speed; the controller's is ``controller`` (told ``believed_rail_speed_m_s``
+        by ``__post_init__``; its filter's assumed noise stays its own ``range_filter.noise_m``)."""
         hw = LegHardware()
         sensor = replace(hw.sensor, range_noise_m=self.range_noise_m, range_dropout_prob=self.range_dropout_prob)
         ctl = self.controller
         if not self.learning:
             ctl = replace(ctl, learner=replace(ctl.learner, learning=False))
-        ctl = replace(ctl, range_filter=replace(ctl.range_filter, noise_m=max(self.range_noise_m, 0.005)))
-        return LockstepConfig(seed=self.seed, hardware=replace(hw, sensor=sensor), controller=ctl)
+        return LockstepConfig(seed=self.seed, rig=replace(RigConfig(), rail_speed_m_s=self.rail_speed_m_s),
+                              hardware=replace(hw, sensor=sensor), controller=ctl)
 
 
 class LearningRun:
@@ -331,14 +346,33 @@ def is_run_file(name: str) -> bool:
             or (name.startswith((f".{METRICS_FILE}.", f".{TRIALS_FILE}.")) and name.endswith(".tmp")))
 
 
+ADDED_KEYS: dict[str, Any] = {"rail_speed_m_s": 0.5, "believed_rail_speed_m_s": 0.5}
+"""Learn configuration keys added after runs were written, with the value every run written
+before them had (issue 18's rail speeds): a folder without the key resumes if that is asked."""
+CONDITION_OPTIONS = {"obstacle_height_m": "--obstacle-heights-m", "obstacle_heights_m": "--obstacle-heights-m",
+                     "obstacle_depth_m": "--obstacle-depth-m", "range_noise_m": "--range-noise-m",
+                     "range_dropout_prob": "--range-dropout", "start_min_m": "--start-m", "start_max_m": "--start-m",
+                     "rail_speed_m_s": "--rail-speed-m-s", "believed_rail_speed_m_s": "--believed-rail-speed-m-s"}
+"""The learn configuration's condition keys -> the option (and experiment key) that sets them."""
+
+
 def config_difference(have: Any, want: Any, where: str = "") -> str | None:
     """The first key where the configuration ``have`` (read from a folder) differs from ``want``
-    (both as JSON gives them), as ``key: X in the folder, Y asked``; None if they are equal."""
+    (both as JSON gives them), as ``key: X in the folder, Y asked``; None if they are equal. A
+    top-level key of :data:`ADDED_KEYS` absent in the folder counts as its old value; an
+    experimental condition's difference names its option (another experiment: a clear refusal)."""
     if isinstance(have, dict) and isinstance(want, dict):
         for key in [*want, *(k for k in have if k not in want)]:
             name = f"{where}.{key}" if where else str(key)
+            if key not in have and not where and key in ADDED_KEYS and key in want \
+                    and json.dumps(want[key]) == json.dumps(ADDED_KEYS[key]):
+                continue
             if key not in have:
                 return f"{name}: absent in the folder, {want[key]!r} asked"
+            if not where and key in CONDITION_OPTIONS and key in want \
+                    and json.dumps(have[key]) != json.dumps(want[key]):
+                return (f"{name}: {have[key]!r} in the folder, {want[key]!r} asked: another experiment "
+                        f"({CONDITION_OPTIONS[key]})")
             if key not in want:
                 return f"{name}: {have[key]!r} in the folder, absent in this version's configuration"
             found = config_difference(have[key], want[key], name)
@@ -574,13 +608,16 @@ def write_figures(out: Path, metrics: dict[str, Any], premotor) -> None:
 
 
 def learn_config(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],
-                 **overrides: Any) -> LearnConfig:
-    """The learning run's configuration for ``method``; a tuple of heights mixes them per trial."""
+                 conditions: Conditions | None = None, **overrides: Any) -> LearnConfig:
+    """The learning run's configuration for ``method``; a tuple of heights mixes them per trial.
+    ``conditions``: the run's other conditions (its heights are replaced by ``obstacle_height_m``,
+    the sweep's cell); default the declared defaults."""
     m = get_method(method)
     heights = tuple(obstacle_height_m) if isinstance(obstacle_height_m, (tuple, list)) else ()
     height = heights[0] if heights else float(obstacle_height_m)
-    return LearnConfig(trials=trials, seed=seed, obstacle_height_m=height, obstacle_heights_m=heights,
-                       learning=m.learns, method=m.name, **overrides)
+    fields = conditions.learn_fields() if conditions is not None else {}
+    fields.update(obstacle_height_m=height, obstacle_heights_m=heights)
+    return LearnConfig(trials=trials, seed=seed, learning=m.learns, method=m.name, **{**fields, **overrides})
 
 
 def run_method(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],

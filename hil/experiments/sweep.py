@@ -64,6 +64,7 @@ from controller.atomic import fsync_dir, write_json_atomic
 from controller.errors import InputError, check_stamp, stamp
 from hil.analysis.metrics import success_last
 from hil.analysis.stats import trials_to_criterion
+from hil.experiments.conditions import Conditions
 from hil.experiments.journal import FolderBusy, FolderLock, is_locked, prepare_folder
 from hil.experiments.methods import DEFAULT_SWEEP_METHODS, METHODS
 
@@ -126,12 +127,15 @@ class Cell:
         obstacle_height_m: obstacle height [m]; a tuple mixes these heights, one drawn per trial.
         seed: the run's seed.
         trials: number of trials.
+        conditions: the sweep's other conditions (its heights aside: the cell's are
+            ``obstacle_height_m``); the same for every cell of a sweep, so not in the cell's name.
     """
 
     method: str
     obstacle_height_m: Height
     seed: int
     trials: int
+    conditions: Conditions = Conditions()
 
     @property
     def name(self) -> str:
@@ -160,10 +164,10 @@ class Cell:
 
 
 def grid(methods: Sequence[str], obstacle_heights_m: Sequence[float], mixed_heights: bool, seeds: Sequence[int],
-         trials: int) -> list[Cell]:
+         trials: int, conditions: Conditions = Conditions()) -> list[Cell]:
     """The cells in summary order: methods as given, then heights (ascending), then seeds."""
     scenarios: list[Height] = [tuple(obstacle_heights_m)] if mixed_heights else sorted(obstacle_heights_m)
-    return [Cell(m, h, s, trials) for m in methods for h in scenarios for s in sorted(seeds)]
+    return [Cell(m, h, s, trials, conditions) for m in methods for h in scenarios for s in sorted(seeds)]
 
 
 @dataclass(frozen=True)
@@ -182,6 +186,10 @@ class SweepConfig:
             its height from the list; default False.
         workers: processes of the local pool, or of the ``dask="local"`` cluster, >= 1;
             default os.cpu_count().
+        conditions: every cell's other experimental conditions (rail speeds, start range, sensor
+            noise and dropout, obstacle depth: :class:`hil.experiments.conditions.Conditions`;
+            their ``obstacle_heights_m`` is not used: the grid's are this config's); default
+            the declared defaults, the paper's set-up.
         dask: None runs the cells on a local process pool; ``"local"`` starts a
             ``distributed.LocalCluster`` (processes, one thread each) and closes it afterwards;
             anything else is a Dask scheduler's address (``tcp://host:8786``); default None.
@@ -195,6 +203,7 @@ class SweepConfig:
     mixed_heights: bool = False
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)
     dask: str | None = None
+    conditions: Conditions = Conditions()
 
     def __post_init__(self) -> None:
         if not str(self.out_dir).strip():  # Path("") would be the current folder
@@ -227,12 +236,19 @@ class SweepConfig:
                              f"{list(self.obstacle_heights_m)}")
 
     def cells(self) -> list[Cell]:
-        return grid(self.methods, self.obstacle_heights_m, self.mixed_heights, self.seeds, self.trials)
+        return grid(self.methods, self.obstacle_heights_m, self.mixed_heights, self.seeds, self.trials,
+                    self.conditions)
 
     def to_json(self) -> dict[str, Any]:
         """What the results depend on (not where or how they were computed)."""
         return {"methods": list(self.methods), "obstacle_heights_m": list(self.obstacle_heights_m),
-                "mixed_heights": self.mixed_heights, "seeds": list(self.seeds), "trials": self.trials}
+                "mixed_heights": self.mixed_heights, "seeds": list(self.seeds), "trials": self.trials,
+                "conditions": conditions_json(self.conditions)}
+
+
+def conditions_json(conditions: Conditions) -> dict[str, Any]:
+    """A sweep's conditions as its ``config.json`` holds them: all but the heights (the grid's)."""
+    return {k: v for k, v in conditions.to_json().items() if k != "obstacle_heights_m"}
 
 
 def cells_from_json(config: dict[str, Any]) -> list[Cell]:
@@ -245,7 +261,9 @@ def cells_from_json(config: dict[str, Any]) -> list[Cell]:
 
 
 CONFIG_KEYS = ("methods", "obstacle_heights_m", "mixed_heights", "seeds", "trials")
-"""The keys of a sweep's ``config.json`` (besides its stamp): what the results depend on."""
+"""The keys every sweep's ``config.json`` has (besides its stamp): what the results depend on.
+Since issue 18 it also has ``conditions`` (:func:`conditions_json`); a file written before has
+none, which reads as the default conditions (those its cells ran with)."""
 
 
 def read_sweep_config(path: str | Path) -> dict[str, Any]:
@@ -269,7 +287,10 @@ def read_sweep_config(path: str | Path) -> dict[str, Any]:
         raise InputError(f"{path}: not a sweep configuration ({', '.join(repr(k) for k in missing)} missing)")
     if not all(isinstance(data[k], list) for k in ("methods", "obstacle_heights_m", "seeds")):
         raise InputError(f"{path}: not a sweep configuration (methods, obstacle_heights_m and seeds must be lists)")
-    return {k: data[k] for k in CONFIG_KEYS}
+    conditions = data.get("conditions", conditions_json(Conditions()))
+    if not isinstance(conditions, dict):
+        raise InputError(f"{path}: not a sweep configuration (conditions must be a table of conditions)")
+    return {**{k: data[k] for k in CONFIG_KEYS}, "conditions": conditions}
 
 
 def summary_row(cell: Cell, success: Sequence[bool]) -> dict[str, Any]:
@@ -301,10 +322,12 @@ def cell_config(cell: Cell):
     """The cell's learn configuration (:func:`hil.experiments.learn.learn_config`)."""
     from hil.experiments.learn import learn_config
 
-    return learn_config(cell.method, seed=cell.seed, trials=cell.trials, obstacle_height_m=cell.obstacle_height_m)
+    return learn_config(cell.method, seed=cell.seed, trials=cell.trials, obstacle_height_m=cell.obstacle_height_m,
+                        conditions=cell.conditions)
 
 
-def run_cell(method: str, seed: int, trials: int, obstacle_height_m: Height, out_dir: str) -> dict[str, Any]:
+def run_cell(method: str, seed: int, trials: int, obstacle_height_m: Height, out_dir: str,
+             conditions: Conditions = Conditions()) -> dict[str, Any]:
     """Run one cell into ``out_dir`` (the task that the pool and Dask run): returns its wall time
     [s], how many trials were kept from a stopped run (``kept``), whether the folder was ``busy``
     and, if it raised, the error (the exception is caught here so that it always pickles)."""
@@ -313,7 +336,8 @@ def run_cell(method: str, seed: int, trials: int, obstacle_height_m: Height, out
     try:
         from hil.experiments.learn import learn_config, learn_into
 
-        config = learn_config(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m)
+        config = learn_config(method, seed=seed, trials=trials, obstacle_height_m=obstacle_height_m,
+                              conditions=conditions)
         kept = learn_into(config, out_dir, what=f"cell {Path(out_dir).name}").kept
         error = tb = None
     except FolderBusy as exc:
@@ -344,7 +368,7 @@ def read_cell(cell: Cell, out_dir: Path) -> tuple[dict[str, Any] | None, str | N
 
 
 def _task(cell: Cell, out_dir: Path) -> tuple:
-    return (cell.method, cell.seed, cell.trials, cell.obstacle_height_m, str(cell.folder(out_dir)))
+    return (cell.method, cell.seed, cell.trials, cell.obstacle_height_m, str(cell.folder(out_dir)), cell.conditions)
 
 
 def _outcome(get: Callable[[], dict[str, Any]]) -> dict[str, Any]:

@@ -88,3 +88,24 @@ def test_a_json_file_with_trials_that_are_not_a_list_is_refused(tmp_path):
     (tmp_path / "x.json").write_text(json.dumps({"trials": 3}))
     with pytest.raises(InputError, match="x.json: 'trials' is a int"):
         read(tmp_path / "x.json")
+
+
+def test_a_field_only_the_newer_run_records_is_an_addition_not_a_difference(tmp_path, capsys):
+    old, new = _run(0.1), _run(0.1)
+    for t in new["trials"]:
+        t["rail_speed_m_s"] = 0.5  # a field a later version added to every trial
+    new["summary"]["missed_contacts"] = 0
+    result = compare(old, new)
+    assert result["same"] is True and result["added_fields"] == [".trials[*].rail_speed_m_s", ".summary.missed_contacts"]
+    assert compare(new, old)["same"] is False  # the newer run lost a field: a difference
+    assert compare(new, old)["first_difference"] == ".trials[0].rail_speed_m_s: only in the first"
+    new["trials"][1]["sim_s"] = 6.0  # an existing field that changed is still a difference
+    assert compare(old, new)["differing_trials"] == [1]
+    assert compare({"a": 1}, {"a": 1, "b": 2}) == {"kind": "json", "same": True, "first_difference": None,
+                                                     "added_fields": [".b"]}
+    (tmp_path / "old.json").write_text(json.dumps(_run(0.1)))
+    newer = _run(0.1)
+    newer["trials"][0]["extra"] = 1
+    (tmp_path / "new.json").write_text(json.dumps(newer))
+    assert main(["compare", str(tmp_path / "old.json"), str(tmp_path / "new.json"), "--json", "-"]) == 0
+    assert json.loads(capsys.readouterr().out)["added_fields"] == [".trials[*].extra"]

@@ -9,7 +9,8 @@ import pytest
 from controller.errors import InputError, stamp
 from hil.analysis.report import load_sweep, read_summary_rows, write_report
 from hil.cli import main
-from hil.experiments.sweep import Cell, read_sweep_config, summary_row
+from hil.experiments.conditions import Conditions
+from hil.experiments.sweep import Cell, conditions_json, read_sweep_config, summary_row
 
 CONFIG = {"methods": ["paper"], "obstacle_heights_m": [0.08], "mixed_heights": False, "seeds": [0, 1], "trials": 12}
 
@@ -33,7 +34,8 @@ def _sweep(tmp_path, stamped: bool):
 def test_a_stamped_sweep_and_one_of_before_stamps_read_and_report_the_same(tmp_path):
     new, rows = _sweep(tmp_path, stamped=True)
     old, _ = _sweep(tmp_path, stamped=False)
-    assert load_sweep(new) == load_sweep(old) == (CONFIG, rows)  # the stamp is not part of the configuration
+    # the stamp is not part of the configuration; a config.json without conditions has the defaults'
+    assert load_sweep(new) == load_sweep(old) == ({**CONFIG, "conditions": conditions_json(Conditions())}, rows)
     a, b = write_report(new), write_report(old)
     assert a["table"] == b["table"] and a["curves"] == b["curves"] and not a["missing"]
     assert (new / "report.md").read_text().replace(str(new), "X") == (old / "report.md").read_text().replace(

@@ -64,7 +64,7 @@ def test_learn_command_writes_metrics_and_weights(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv,code,match", [
-    (["--obstacle-height-m", "0.02"], 3, "obstacle_height_m"),  # an invalid configuration: input
+    (["--obstacle-height-m", "0.02"], 2, "obstacle_height_m"),  # a condition out of its range: argparse's
     (["--trials", "0"], 2, "argument --trials"),  # a malformed option: usage, argparse names it
     (["--seed", "-5"], 2, "argument --seed"),
 ])

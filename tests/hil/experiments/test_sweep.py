@@ -322,6 +322,20 @@ def test_mixed_heights_are_one_scenario(tmp_path):
     assert "## Obstacle mixed 0.06/0.1 m" in (out / "report.md").read_text()
 
 
+def test_an_experiment_file_sets_every_cell_and_the_options_win(tmp_path):
+    experiment = tmp_path / "e.toml"
+    experiment.write_text("rail_speed_m_s = 0.55\nrange_noise_m = 0.04\nobstacle_heights_m = [0.06, 0.1]\n")
+    out = tmp_path / "sweep"
+    assert main(["sweep", "--out", str(out), "--experiment", str(experiment), "--range-noise-m", "0.03", "--seeds", "1",
+                 "--methods", "none", "--trials", "1", "--workers", "1", "--quiet"]) == 0
+    rows = json.loads((out / "summary.json").read_text())["rows"]
+    assert [r["obstacle_height_m"] for r in rows] == [0.06, 0.1]  # the file's heights are the grid
+    for row in rows:
+        config = json.loads((out / "cells" / row["cell"] / "metrics.json").read_text())["config"]
+        assert (config["rail_speed_m_s"], config["range_noise_m"]) == (0.55, 0.03)
+    assert json.loads((out / "config.json").read_text())["conditions"]["rail_speed_m_s"] == 0.55
+
+
 def test_cells_run_on_a_dask_scheduler_given_by_address(tmp_path):
     import distributed
 
