@@ -105,8 +105,8 @@ class _RecordingPlant(RigPlant):
     """The plant of a recording run: every method the stack uses, the plant's own, noted.
 
     Built by the leg of a :class:`_RecordingLockstep` (its ``plant_class``) with the plant's own
-    constructor (what happens in it, a reset, is not noted: the replay's plant is built the same way). A Python subclass of the
-    compiled plant (``RigPlant`` allows them): the compiled stack's calls on it reach these methods
+    constructor (what happens in it, a reset, is not noted: the replay's plant is built the same
+    way). A Python subclass of the compiled plant (``RigPlant`` allows them): the compiled stack's calls on it reach these methods
     (mypyc gives a Python subclass's instances a table of calls through Python). Queries are noted
     when they return (a range ray reads the rail first, so the rail is noted first); events only at
     the outermost call (a rewind sets the rail speed itself)."""
