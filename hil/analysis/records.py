@@ -145,6 +145,7 @@ def compare(first: Any, second: Any) -> dict[str, Any]:
         return {"kind": "learn", "same": not differing and summary, "trials": [len(a), len(b)],
                 "differing_trials": differing, "summary_same": summary, "first_difference": diff,
                 "added_fields": added}
-    newer, added = split_additions(_strip(first), _strip(second))
-    diff = first_difference(_strip(first), newer)
+    older = _strip(first)
+    newer, added = split_additions(older, _strip(second))
+    diff = first_difference(older, newer)
     return {"kind": "json", "same": diff is None, "first_difference": diff, "added_fields": added}
