@@ -60,6 +60,30 @@ def test_stale_when_a_source_differs_from_the_compiled_digest(tmp_path: Path) ->
     assert stale(digest, tmp_path)  # a source gone: never run the old extension
 
 
+def test_every_class_of_a_hot_module_keeps_its_bases() -> None:
+    """mypyc drops a base class it cannot resolve at build time (an import it did not find is Any),
+    silently: a compiled ``LocalBus`` was once no ``BusABC`` at all. Every class a hot module
+    defines must have each base its source names in its MRO, compiled or not."""
+    import ast
+    import importlib
+
+    checked = 0
+    for name in HOT_MODULES:
+        module = importlib.import_module(name)
+        tree = ast.parse((ROOT / (name.replace(".", "/") + ".py")).read_text())
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.ClassDef) or not hasattr(module, node.name):
+                continue
+            cls = getattr(module, node.name)
+            for expr in node.bases:
+                base = eval(ast.unparse(expr), vars(module))  # noqa: S307 - the module's own source
+                if isinstance(base, type):  # (typing.NamedTuple is a function: its class is a tuple)
+                    assert base in cls.__mro__, (f"{name}.{node.name} lost its base {ast.unparse(expr)} "
+                                                 f"(MRO {cls.__mro__}): was the install compiled without it?")
+                    checked += 1
+    assert checked >= 8  # LocalBus, Frame, Tally, Phase, Lockstep, the Protocols
+
+
 def test_pure_python_switch_imports_only_sources() -> None:
     assert _compiled_in_child(pure=True) == []
 
