@@ -29,6 +29,7 @@ import logging
 import math
 from collections import Counter
 from dataclasses import dataclass, field
+from typing import Callable, Final
 
 import can
 
@@ -50,6 +51,11 @@ from controller.settings.file import DriverSettings
 from controller.supervisor import ACTIVE_PHASES, Phase, Supervisor, error_names, error_text
 from protocol import AxisState, BusContract, ControlMode, InputMode
 from protocol.endpoints import WATCHDOG_TIMEOUT
+
+MIN_LIFT_AMPLITUDE: Final = 1.0
+"""A premotor's lift never lowers the swing below the CPG's own step height."""
+MAX_LIFT_AMPLITUDE: Final = 5.0
+"""The largest amplitude ``reflexes.lift_amplitude`` may be set to: a premotor's lift may not exceed it."""
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +123,11 @@ class ControlLoop:
         self.premotor: Premotor = premotor or AdaptivePremotor(
             self.encoder.n_cells, config.cpg.burst_s, config.learner
         )
+        # a premotor that also learns the lift (controller.stepping.premotor.LiftingPremotor) sets the
+        # amplitude and hears each reflex in full; any other gets the hardwired lift reflex
+        self._premotor_lift: Callable[[float | None, int | None], float] | None = getattr(
+            self.premotor, "lift_amplitude", None)
+        self._premotor_reflex: Callable[[Reflex], None] | None = getattr(self.premotor, "on_contact_reflex", None)
         self._range_samples_seen = 0
         self.trajectory = FootTrajectory(config.gait, config.cpg, config.geometry)
         self.muscles = {a.name: LowPass(config.gait.muscle_tau_s) for a in self.axes}
@@ -404,7 +415,15 @@ class ControlLoop:
         cell = self.encoder.cell(gated)
         context = self.height.context
         self.premotor.on_step_onset(now_s, cell, context=context)
-        self.cpg.amplitude = lift_amplitude(self.config.reflexes, gated)
+        amplitude = lift_amplitude(self.config.reflexes, gated)
+        if self._premotor_lift is not None:
+            asked = self._premotor_lift(gated, context)
+            # the CPG's amplitude stays within the reflex setting's declared range whatever a
+            # premotor asks (a NaN keeps the hardwired reflex's)
+            if asked == asked:
+                amplitude = MIN_LIFT_AMPLITUDE if asked < MIN_LIFT_AMPLITUDE else (
+                    MAX_LIFT_AMPLITUDE if asked > MAX_LIFT_AMPLITUDE else asked)
+        self.cpg.amplitude = amplitude
         return StepRecord(index=len(self.stats.steps), onset_s=now_s, gated_range_m=gated, cell=cell,
                           modulation_s=self.premotor.gated_weight(), amplitude=self.cpg.amplitude, context=context)
 
@@ -419,7 +438,10 @@ class ControlLoop:
         reflex = self.reflexes.update(now_s, out, self.sensors.foot, self.sensors.shin, self._foot_height_m)
         if reflex is not None:
             self.stats.reflexes.append(reflex)
-            self.premotor.on_reflex(reflex.kind, now_s)
+            if self._premotor_reflex is not None:
+                self._premotor_reflex(reflex)
+            else:
+                self.premotor.on_reflex(reflex.kind, now_s)
         burst = self.cpg.set_burst_s(self.premotor.burst_s(now_s))
         if out.flexing and not self._was_flexing and steps:
             steps[-1].burst_s = burst

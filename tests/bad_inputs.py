@@ -171,7 +171,7 @@ def setup_files(tmp: Path) -> None:
     (tmp / "unit.service").write_text("[Service]\nExecStart=/bin/true\n")
     (tmp / "experiment_unknown_key.toml").write_text("rail_speed_m_s = 0.6\nrail_sped_m_s = 0.4\n")
     (tmp / "experiment_wrong_type.toml").write_text('range_dropout = "often"\n')
-    (tmp / "experiment_bad_height.toml").write_text("obstacle_heights_m = [0.06, 0.25]\n")
+    (tmp / "experiment_bad_height.toml").write_text("obstacle_heights_m = [0.06, 0.55]\n")
 
 
 # -- the rows ----------------------------------------------------------------------------------------
@@ -350,8 +350,11 @@ ROWS: tuple[Row, ...] = (
     Row("learn_start_reversed", "learn --start-m 3,2 (MIN above MAX)",
         ("learn", "--start-m", "3,2", "--out", "{tmp}/learn"), 2, ("--start-m", "MIN must not exceed MAX")),
     Row("learn_heights_bad_value", "learn --obstacle-heights-m with a height out of range",
-        ("learn", "--obstacle-heights-m", "0.06,0.25", "--out", "{tmp}/learn"), 2,
-        ("--obstacle-heights-m", "0.25", "[0.03, 0.2] m")),
+        ("learn", "--obstacle-heights-m", "0.06,0.55", "--out", "{tmp}/learn"), 2,
+        ("--obstacle-heights-m", "0.55", "[0.03, 0.5] m")),
+    Row("learn_height_beyond_the_leg", "learn with an obstacle taller than the leg can clear at all",
+        ("learn", "--obstacle-heights-m", "0.06,0.25", "--out", "{tmp}/learn"), 3,
+        ("0.250 m is above the leg's 0.223 m limit", "knee")),
     Row("learn_experiment_unknown_key", "an experiment TOML with an unknown key (a typo)",
         ("learn", "--experiment", "{tmp}/experiment_unknown_key.toml", "--out", "{tmp}/learn"), 3,
         ("experiment_unknown_key.toml", "rail_sped_m_s", "unknown key")),
@@ -362,7 +365,7 @@ ROWS: tuple[Row, ...] = (
         ("learn", "--experiment", "{tmp}/nothere.toml", "--out", "{tmp}/learn"), 3, ("nothere.toml", "no such file")),
     Row("sweep_experiment_bad_height", "a sweep's experiment TOML with a height out of range",
         ("sweep", "--experiment", "{tmp}/experiment_bad_height.toml", "--out", "{tmp}/sweep", "--quiet"), 3,
-        ("experiment_bad_height.toml", "obstacle_heights_m", "0.25")),
+        ("experiment_bad_height.toml", "obstacle_heights_m", "0.55")),
     Row("sweep_other_configuration", "a sweep into a folder of another configuration (nothing deleted)",
         ("sweep", "--out", "{tmp}/sweep", "--seeds", "0", "--methods", "none", "--trials", "2", "--quiet"), 3,
         ("{tmp}/sweep",), keep=("sweep/summary.json",), owner="A"),

@@ -381,6 +381,15 @@ def max_clearable_height_m(
                           held_height_m=held_h, held_x_m=held_k * _BIN_M, reason=reason)
 
 
+def max_lift_amplitude(**leg) -> float:
+    """The highest lift amplitude (x the gait's step height) the leg allows: the highest its foot
+    can be held at all within its joint and torque limits (``held_height_m`` of
+    :func:`max_clearable_height_m`, whose keyword arguments ``leg`` are, ``axes`` required) over
+    ``gait.step_height_m``. A lift beyond it asks for poses the joints cannot take."""
+    gait = leg.get("gait", GaitConfig())
+    return max_clearable_height_m(**leg).held_height_m / gait.step_height_m
+
+
 def check_height(height_m: float, depth_m: float = 0.10, **leg) -> None:
     """Refuse an obstacle taller than the leg can clear at all (ValueError with the reason);
     ``leg``: :func:`max_clearable_height_m`'s keyword arguments (``axes`` required)."""
@@ -390,5 +399,6 @@ def check_height(height_m: float, depth_m: float = 0.10, **leg) -> None:
                          f"{depth_m:g} m deep obstacle: {limit.reason}")
 
 
-__all__ = ["JointAxis", "LegLoads", "ClearanceLimit", "max_clearable_height_m", "check_height", "static_torques_nm",
+__all__ = ["JointAxis", "LegLoads", "ClearanceLimit", "max_clearable_height_m", "max_lift_amplitude",
+           "check_height", "static_torques_nm",
            "link_extent", "knee_at_reach_rad", "effort_nm", "shortest_swing_s", "GRAVITY_M_S2"]

@@ -5,7 +5,8 @@ non-overlapping cells (:mod:`controller.stepping.encoder`), step-gated short-ter
 synaptic traces and the reflex-trained weights (:mod:`controller.stepping.learner`), the contact
 and lift reflexes (:mod:`controller.stepping.reflexes`), the obstacle-height context and its
 learner (:mod:`controller.stepping.height`, :mod:`controller.stepping.context`), the tabular
-Q-learning baseline (:mod:`controller.stepping.rl`), all behind one protocol
+Q-learning baseline (:mod:`controller.stepping.rl`), the improved learner with the learned lift
+(:mod:`controller.stepping.improved`), all behind one protocol
 (:mod:`controller.stepping.premotor`); the learned weights on disk
 (:mod:`controller.stepping.weights`).
 

@@ -6,7 +6,10 @@ implements it; so can any other stride policy (a baseline, a planner) that the l
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    from controller.stepping.reflexes import Reflex
 
 
 class Premotor(Protocol):
@@ -23,3 +26,18 @@ class Premotor(Protocol):
 
     def gated_weight(self) -> float:
         """The burst change [s] the last gate asked for (0: the gate changed nothing)."""
+
+
+class LiftingPremotor(Premotor, Protocol):
+    """A premotor that also learns the lift (:class:`controller.stepping.improved.ImprovedPremotor`).
+
+    The loop looks for these two methods once, when it is built; a premotor without them gets the
+    hardwired lift reflex (:func:`controller.stepping.reflexes.lift_amplitude`) and ``on_reflex``."""
+
+    def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
+        """The CPG amplitude for the step cycle this gate begins (the loop keeps it within
+        [``MIN_LIFT_AMPLITUDE``, ``MAX_LIFT_AMPLITUDE``] of :mod:`controller.loop`)."""
+
+    def on_contact_reflex(self, reflex: "Reflex") -> None:
+        """A contact reflex fired, in full (kind, time, cause, swing half, phase): called instead
+        of ``on_reflex``."""

@@ -50,7 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--obstacle-height-m", type=_one_height, default=None,
                    metavar="H", help="one obstacle height for every trial [m] (= --obstacle-heights-m H; default 0.08)")
     add_conditions(p, helps={"obstacle_heights_m": "obstacle heights [m], comma list: each trial's drawn from it "
-                                                    "(seeded) if several; each in [0.03, 0.2] m, not 0.03 "
+                                                    "(seeded) if several; each in [0.03, 0.5] m, not 0.03, and at "
+                                                    "most the leg's limit "
+                                                    "(0.223 m for the default block; docs/leg_limits.md) "
                                                     "(default 0.08)"})
     p.add_argument("--no-learning", action="store_true", help="freeze the weights at zero (the baseline)")
     p.add_argument("--no-figures", action="store_true", help="skip DIR/figures/")

@@ -60,7 +60,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     add_conditions(p, helps={"obstacle_heights_m": "obstacle heights [m], comma list: the grid, one scenario each "
                                                     "(with --mixed-heights, one scenario drawing per trial); each in "
-                                                    "[0.03, 0.2] m, not 0.03 (default 0.08)"})
+                                                    "[0.03, 0.5] m, not 0.03, and at most the leg's limit (0.223 m for the "
+                                                    "default block; docs/leg_limits.md) (default 0.08)"})
     p.add_argument("--mixed-heights", action="store_true",
                    help="one scenario in which each trial draws its height from the list")
     from hil.experiments.methods import DEFAULT_SWEEP_METHODS, METHODS

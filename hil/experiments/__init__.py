@@ -1,11 +1,12 @@
 """Experiments: walking, learning runs and sweeps, each seeded.
 
 :mod:`hil.experiments.methods` is the method registry, the only place a method is added
-(``paper``, ``context``, ``none``, ``oracle``, ``rl``); :mod:`hil.experiments.learn` runs learning
+(``paper``, ``context``, ``none``, ``oracle``, ``rl``, ``improved``); :mod:`hil.experiments.learn` runs learning
 trials with one of them; :mod:`hil.experiments.sweep` runs seeds x heights x methods on a process
 pool or Dask; :mod:`hil.experiments.journal` keeps a run's trials on disk as they finish (the
 append-only record a stopped run resumes from, the folder lock); :mod:`hil.experiments.walk` walks on flat ground; :mod:`hil.experiments.oracle` is the
-planner given the true distance.
+planner given the true distance (and height); :mod:`hil.experiments.tuning` tries the improved
+learner's settings on the tuning seeds (0-99) only.
 
 May import: ``controller``, ``firmware_sim``, ``protocol``, :mod:`hil.lockstep`,
 :mod:`hil.analysis`; tqdm and dask inside the functions that need them.

@@ -63,7 +63,8 @@ class Conditions:
     range_dropout: float = setting(0.05, "(probability)", 0.0, 0.95, "probability that a range sample is a dropout")
     obstacle_depth_m: float = setting(0.10, "m", 0.01, 0.30, "obstacle extent along the rail")
     obstacle_heights_m: tuple[float, ...] = setting(
-        (0.08,), "m", SENSOR_FLOOR_M, 0.20, "obstacle heights: learn draws one per trial if several",
+        (0.08,), "m", SENSOR_FLOOR_M, 0.50,
+        "obstacle heights (each also within the leg's limit): learn draws one per trial if several",
         items=(1, 100), exclude=((SENSOR_FLOOR_M, "the range sensor sees only what is taller than 3 cm"),))
 
     def __post_init__(self) -> None:

@@ -126,6 +126,7 @@ class LearnConfig:
             gait = replace(self.controller.gait, ground_speed_m_s=self.believed_rail_speed_m_s)
             object.__setattr__(self, "controller", replace(self.controller, gait=gait))
         Conditions.of_learn(self)  # the conditions' declared ranges (ValueError naming the condition)
+        check_heights(self)  # and within what the leg can clear at all
         if not 1.0 <= self.trace_rate_hz <= 1000.0:
             raise ValueError(f"trace_rate_hz must be in [1, 1000] Hz, got {self.trace_rate_hz}")
 
@@ -142,6 +143,26 @@ class LearnConfig:
                               hardware=replace(hw, sensor=sensor), controller=ctl)
 
 
+def check_heights(config: LearnConfig) -> None:
+    """Refuse (ValueError, with the reason) an obstacle taller than the leg can clear at all: the
+    limit of its joints, torques and longest swing for the obstacle's depth and the rail speed
+    the controller is told (:func:`controller.motion.reach.check_height`, docs/leg_limits.md), not
+    of any reflex or learner; such an experiment would only count mistakes."""
+    from controller.motion.reach import check_height
+
+    ctl = config.controller
+    for height in sorted(set(config.obstacle_heights_m or (config.obstacle_height_m,)), reverse=True)[:1]:
+        try:
+            check_height(height, config.obstacle_depth_m, geometry=ctl.geometry, axes=ctl.axes, cpg=ctl.cpg,
+                         gait=ctl.gait)
+        except ValueError as exc:
+            raise ValueError(f"obstacle height: {exc}") from None
+
+
+STALL_S = 5.0
+"""A trial whose carriage is this late [s] at the trial's end stalled (see :meth:`LearningRun.trial`)."""
+
+
 class LearningRun:
     """One learning run: build with a config, call :meth:`run`, read ``trials`` and the weights."""
 
@@ -150,9 +171,10 @@ class LearningRun:
         :class:`hil.lockstep.synced.SyncedLockstep` runs the same through the simulated-time protocol)."""
         self.config = config
         self._near_m: float | None = None  # the current obstacle's near edge (ground truth)
+        self._height_m = 0.0  # and its height (ground truth)
         if premotor is None:  # None from the registry too: the controller's own premotor
             premotor = get_method(config.method).build(config.controller, config.learning, config.seed,
-                                                      self._true_distance_m)
+                                                      self._true_distance_m, self._true_height_m)
         self.ls = harness(config.lockstep(), premotor=premotor)
         self.rng = np.random.default_rng(config.seed)
         self.tracker = FootfallTracker(self.ls.plant, clearance=False)  # no clearance in a trial's record
@@ -161,6 +183,9 @@ class LearningRun:
         """The simulated times [s] of the last trial: its start (``t0_s``), the first footfall beyond
         the obstacle's near edge (``crossing_s``) and its end (``end_s``), by which a controller's
         records are matched to it (``hil --clock sim``)."""
+
+    def _true_height_m(self) -> float | None:
+        return self._height_m if self._near_m is not None else None
 
     def _true_distance_m(self) -> float | None:
         if self._near_m is None:
@@ -211,9 +236,12 @@ class LearningRun:
             height = float(c.obstacle_heights_m[int(self.rng.integers(len(c.obstacle_heights_m)))])
         plant.add_obstacle(Obstacle(near, height, c.obstacle_depth_m))
         self._near_m = near
+        self._height_m = height
         t0 = ls.t_s
         n_steps0, n_reflex0, n_td0 = len(loop.stats.steps), len(loop.stats.reflexes), len(self.tracker.footfalls_x_m)
         contact = False
+        touching = False
+        contacts: list[list[float]] = []  # [start, end] of each episode of contact [s], from t0
         trace: dict[str, list[float]] | None = None
         if self.traced(index):
             trace = {"t_s": [], "foot_x_m": [], "foot_z_m": [], "burst_s": [], "contact": []}
@@ -221,11 +249,25 @@ class LearningRun:
         n = 0
         # hot path (once a physics step): bound methods and the two bounds hoisted out of the loop
         step, track, end_m, watch_m = ls.step, self.tracker.update, far + c.past_obstacle_m, near - 1.0
+        # the carriage reaches the end in (end_m - x0) / speed; one caught on the block (a foot
+        # wedged on a tall one) never does: the trial ends as a stalled mistake STALL_S later
+        deadline_s = t0 + (end_m - x0) / plant.rail_speed_m_s + STALL_S
+        stalled = False
         while plant.carriage_x_m < end_m:
+            if ls.t_s > deadline_s:
+                stalled = True
+                break
             step()
             track()
-            if not contact and plant.carriage_x_m > watch_m:
-                contact = plant.obstacle_contact()
+            if plant.carriage_x_m > watch_m:
+                now_touching = plant.obstacle_contact()
+                if now_touching:
+                    if not touching:
+                        contacts.append([ls.t_s - t0, ls.t_s - t0])
+                    else:
+                        contacts[-1][1] = ls.t_s - t0
+                    contact = True
+                touching = now_touching
             if trace is not None and n % every == 0:
                 fx, fz = plant.foot_position()
                 trace["t_s"].append(ls.t_s - t0)
@@ -248,15 +290,20 @@ class LearningRun:
         # the decisions before the crossing: every gate whose swing began before the foot landed
         # beyond the near edge (the last of them is the crossing swing's own gate)
         decided = [s for s in steps if s.swing_start_s < crossing_t]
+        reflexes = loop.stats.reflexes[n_reflex0:]
         return {
             "index": index,
-            "success": not contact,
+            "success": not contact and not stalled,
             "start_distance_m": near - x0,
             "obstacle_height_m": height,
             "reflexes": [
                 {"kind": r.kind, "t_s": r.t_s - t0, "cause": r.cause, "swing": r.swing, "phase": r.phase}
-                for r in loop.stats.reflexes[n_reflex0:]
+                for r in reflexes
             ],
+            "contacts": contacts,
+            "stalled": stalled,
+            "contact_misses": contact_misses(contacts, [r.t_s - t0 for r in reflexes],
+                                             loop.config.reflexes.refractory_s),
             "footfalls_m": [x - near for _, x in before],
             "burst_s": [s.burst_s for s in steps if not math.isnan(s.burst_s)],
             "gated_range_m": [s.gated_range_m for s in decided],
@@ -292,6 +339,20 @@ class LearningRun:
         self.ls.close()
 
 
+MISS_SLACK_S = 0.01
+"""A reflex up to this long after a contact's end still heard it (the switch's frame, the next tick)."""
+
+
+def contact_misses(contacts: list[list[float]], reflex_t_s: list[float], refractory_s: float) -> int:
+    """How many episodes of obstacle contact (ground truth, ``[start, end]`` [s]) no contact reflex
+    heard: none fired from ``refractory_s`` before the episode's start (a reflex still refractory
+    from the same collision covers it) to :data:`MISS_SLACK_S` after its end. Every miss is a
+    contact the learner never heard of. An episode is contact on consecutive physics steps
+    (:meth:`firmware_sim.plant.RigPlant.obstacle_contact`, the ground truth of ``success``)."""
+    return sum(1 for start, end in contacts
+               if not any(start - refractory_s <= t <= end + MISS_SLACK_S for t in reflex_t_s))
+
+
 def summarize(trials: list[dict[str, Any]], wall_s: float, sim_s: float) -> dict[str, Any]:
     n = len(trials)
     return {
@@ -301,6 +362,7 @@ def summarize(trials: list[dict[str, Any]], wall_s: float, sim_s: float) -> dict
         "success_21_40": window_success(trials, 21, 40),
         "mistakes_101_150": mistakes_101_150(trials),
         "reflexes": sum(len(t["reflexes"]) for t in trials),
+        "contact_misses": sum(t.get("contact_misses", 0) for t in trials),
         "wall_s": wall_s,
         "sim_s": sim_s,
         "trials_per_minute": n / wall_s * 60.0 if wall_s > 0 else None,
@@ -309,7 +371,9 @@ def summarize(trials: list[dict[str, Any]], wall_s: float, sim_s: float) -> dict
 
 def _weights_of(premotor) -> np.ndarray | None:
     """The learned weights of a premotor that has them ((n_cells,) or (n_contexts, n_cells)), else None."""
-    return premotor.weights if isinstance(premotor, (AdaptivePremotor, ContextPremotor)) else None
+    from controller.stepping.improved import ImprovedPremotor
+
+    return premotor.weights if isinstance(premotor, (AdaptivePremotor, ContextPremotor, ImprovedPremotor)) else None
 
 
 def run_learning(config: LearnConfig, out_dir: str | Path | None = None, progress: bool = False,
@@ -495,8 +559,15 @@ class LearnOutcome:
     kept: int = 0
 
 
+ADDED_TRIAL_KEYS = ("contacts", "contact_misses", "stalled")
+"""Fields a trial record gained after runs were kept (issue 18): a kept record without them is
+checked on the fields it has (its run resumes; the new trials carry them)."""
+
+
 def _check_rerun(trial: dict[str, Any], kept: dict[str, Any], index: int, path: Path) -> None:
-    """The re-run's record of trial ``index`` must be the kept one, bit for bit (as JSON)."""
+    """The re-run's record of trial ``index`` must be the kept one, bit for bit (as JSON), but for
+    :data:`ADDED_TRIAL_KEYS` a kept record lacks."""
+    trial = {k: v for k, v in trial.items() if k in kept or k not in ADDED_TRIAL_KEYS}
     if json.dumps(trial) == json.dumps(kept):
         return
     from hil.analysis.records import first_difference

@@ -10,6 +10,8 @@ module that sets the CPG's burst length:
 - ``none``: no adaptation (the weights stay at zero: the CPG's natural stride).
 - ``oracle``: a geometric planner that knows the exact distance (see :mod:`hil.experiments.oracle`).
 - ``rl``: reinforcement learning on the same gated encoder (see :mod:`controller.stepping.rl`).
+- ``improved``: the paper's learner with height context, credit over neighbouring cells, a
+  falling learning rate and the lift learned per context (see :mod:`controller.stepping.improved`).
 
 To add a method, add one :class:`Method` to :data:`REGISTRY`; ``learn --method``, ``sweep
 --methods``, the sweep's report and the figures' legends all read it from here.
@@ -29,33 +31,50 @@ from typing import Any, Callable, Optional
 from controller.config import ControllerConfig
 
 Truth = Callable[[], Optional[float]]
-PremotorBuilder = Callable[[ControllerConfig, bool, int, Truth], Any]
-"""``build(controller, learning, seed, truth)``: the premotor of a run, or None for the controller's own."""
+PremotorBuilder = Callable[[ControllerConfig, bool, int, Truth, Truth], Any]
+"""``build(controller, learning, seed, truth, height)``: the premotor of a run, or None for the controller's own."""
 
 
-def _controller_default(controller: ControllerConfig, learning: bool, seed: int, truth: Truth) -> None:
+def _controller_default(controller: ControllerConfig, learning: bool, seed: int, truth: Truth,
+                        height: Truth) -> None:
     """None: the controller's own premotor (:class:`controller.stepping.learner.AdaptivePremotor`),
     learning or frozen as ``learning`` says."""
     return None
 
 
-def _oracle(controller: ControllerConfig, learning: bool, seed: int, truth: Truth):
+def _oracle(controller: ControllerConfig, learning: bool, seed: int, truth: Truth, height: Truth):
     from hil.experiments.oracle import OraclePremotor
 
-    return OraclePremotor(controller, truth)
+    return OraclePremotor(controller, truth, height=height)
 
 
-def _rl(controller: ControllerConfig, learning: bool, seed: int, truth: Truth):
+def _rl(controller: ControllerConfig, learning: bool, seed: int, truth: Truth, height: Truth):
     from controller.stepping.rl import QLearnerConfig, QLearningPremotor
 
     return QLearningPremotor(controller.encoder.n_cells, controller.cpg.burst_s, QLearnerConfig(seed=seed))
 
 
-def _context(controller: ControllerConfig, learning: bool, seed: int, truth: Truth):
+def _context(controller: ControllerConfig, learning: bool, seed: int, truth: Truth, height: Truth):
     from controller.stepping.context import ContextPremotor
 
     learner = controller.learner if learning else replace(controller.learner, learning=False)
     return ContextPremotor(controller.height.n_contexts, controller.encoder.n_cells, controller.cpg.burst_s, learner)
+
+
+def lift_max(controller: ControllerConfig) -> float:
+    """The highest lift amplitude the leg allows (:func:`controller.motion.reach.max_lift_amplitude`)."""
+    from controller.motion.reach import max_lift_amplitude
+
+    return max_lift_amplitude(geometry=controller.geometry, axes=controller.axes, cpg=controller.cpg,
+                              gait=controller.gait)
+
+
+def _improved(controller: ControllerConfig, learning: bool, seed: int, truth: Truth, height: Truth):
+    from controller.stepping.improved import ImprovedConfig, ImprovedPremotor
+
+    config = ImprovedConfig(learning=learning, lift_amplitude=controller.reflexes.lift_amplitude,
+                            lift_range_m=controller.reflexes.lift_range_m, lift_max=lift_max(controller))
+    return ImprovedPremotor(controller.height.n_contexts, controller.encoder.n_cells, controller.cpg.burst_s, config)
 
 
 @dataclass(frozen=True)
@@ -68,9 +87,11 @@ class Method:
         learns: whether its runs learn (False: ``LearnConfig.learning`` is False in a sweep).
         sentence: what the sweep report's headline says of it: ``"criterion"`` (trials to
             criterion and mistakes after trial 100), ``"success"`` (its success rate), or None.
-        build: ``build(controller, learning, seed, truth)`` returns the premotor module of a run
-            (its controller configuration, whether it learns, its seed), or None for the controller's own. ``truth()`` is the true distance from the foot to the
-            obstacle's near edge [m] (None with no obstacle): ground truth only the oracle uses.
+        build: ``build(controller, learning, seed, truth, height)`` returns the premotor module of
+            a run (its controller configuration, whether it learns, its seed), or None for the
+            controller's own. ``truth()`` is the true distance from the foot to the obstacle's
+            near edge [m], ``height()`` the obstacle's true height [m] (None with no obstacle):
+            ground truth only the oracle uses.
     """
 
     name: str
@@ -86,6 +107,7 @@ REGISTRY: dict[str, Method] = {m.name: m for m in (
     Method("none", "Without adaptation (none), the leg", False, _controller_default),
     Method("oracle", "The oracle", True, _oracle, sentence="success"),
     Method("rl", "Reinforcement learning (rl)", True, _rl),
+    Method("improved", "The improved learner", True, _improved),
 )}
 METHODS: tuple[str, ...] = tuple(REGISTRY)  # the names, e.g. for argparse ``choices``
 DEFAULT_METHOD = "paper"

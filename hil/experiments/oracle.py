@@ -9,6 +9,12 @@ adaptation). It splits the remaining distance into the whole number of strides c
 the natural stride, each within the CPG's burst bounds, and sets the burst for the coming swing:
 ``stride = v * (stance + burst)``.
 
+It is given the obstacle's true height too, and sets the lift for it (:meth:`OraclePremotor.lift_amplitude`):
+``max(reflexes.lift_amplitude, (height + lift_margin_m) / step_height)``, within the leg's limit,
+where the hardwired reflex would lift (the gated range below ``reflexes.lift_range_m``). At 0.08 m
+and below that is the hardwired lift itself, so the oracle's records there are those of before. So
+it stays an upper bound for the learners, which must learn their lift.
+
 It is a Premotor (``controller.stepping.premotor``) like the learner, so it drives the same CPG through the
 same loop, bus and plant; it never learns.
 """
@@ -27,18 +33,33 @@ class OracleConfig:
     """Attributes:
     takeoff_m: planned last footfall relative to the near edge [m]; default -0.16 (the foot
         settles a few cm past the plan, so -0.16 lands near the take-off window's middle).
+    lift_margin_m: the lift's peak above the obstacle's top, over the step height [m]; default
+        0.07 (the gait's half-sine swing is at its peak only mid-swing: 0.12 m obstacles need an
+        amplitude of about 2.4, 0.16 m about 2.9; measured on seed 5 with the oracle, docs/improved.md).
     """
 
     takeoff_m: float = -0.16
+    lift_margin_m: float = 0.07
 
 
 class OraclePremotor:
     """Plans stride lengths from the true distance ``truth()`` (foot to near edge [m], or None)."""
 
     def __init__(self, controller: ControllerConfig, truth: Callable[[], float | None],
-                 config: OracleConfig = OracleConfig()) -> None:
+                 config: OracleConfig = OracleConfig(), height: Callable[[], float | None] | None = None) -> None:
+        """``truth()``: the foot's distance to the near edge [m]; ``height()``: the obstacle's
+        height [m] (None: no obstacle; no ``height``: the hardwired lift)."""
         self.config = config
         self.truth = truth
+        self.height = height
+        self._reflexes = controller.reflexes
+        self._step_height_m = controller.gait.step_height_m
+        self._lift_max = None
+        if height is not None:
+            from controller.motion.reach import max_lift_amplitude
+
+            self._lift_max = max_lift_amplitude(geometry=controller.geometry, axes=controller.axes,
+                                                cpg=controller.cpg, gait=controller.gait)
         cpg = controller.cpg
         self.v_m_s = controller.gait.ground_speed_m_s
         self.stance_s = cpg.stance_s
@@ -72,6 +93,16 @@ class OraclePremotor:
 
     def burst_s(self, now_s: float) -> float:
         return self._burst_s
+
+    def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
+        """The hardwired reflex's rule for when to lift; how high from the true height."""
+        from controller.stepping.reflexes import lift_amplitude
+
+        hardwired = lift_amplitude(self._reflexes, gated_range_m)
+        h = self.height() if self.height is not None else None
+        if hardwired == 1.0 or h is None or self._lift_max is None:
+            return hardwired
+        return min(self._lift_max, max(hardwired, (h + self.config.lift_margin_m) / self._step_height_m))
 
     def on_reflex(self, kind: str, now_s: float) -> None:
         pass

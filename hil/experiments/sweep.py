@@ -74,7 +74,8 @@ DEFAULT_METHODS = DEFAULT_SWEEP_METHODS
 SWEEP_VERSION = 1
 SWEEP_FILES = ("cells", "config.json", "summary.json", "timing.json", "report.md", "figures")
 """What a sweep writes in its folder, and all that ``--overwrite`` removes."""
-MIN_HEIGHT_M, MAX_HEIGHT_M = 0.03, 0.20  # as hil.experiments.learn.LearnConfig: the sensor sees above 3 cm
+# as hil.experiments.conditions: the sensor sees above 3 cm (and the leg's limit, checked apart)
+MIN_HEIGHT_M, MAX_HEIGHT_M = 0.03, 0.50
 
 Height = float | tuple[float, ...]
 
@@ -222,6 +223,7 @@ class SweepConfig:
         for h in self.obstacle_heights_m:
             if not (isinstance(h, (int, float)) and math.isfinite(h) and MIN_HEIGHT_M < h <= MAX_HEIGHT_M):
                 raise ValueError(f"obstacle_heights_m: each must be in ({MIN_HEIGHT_M}, {MAX_HEIGHT_M}] m, got {h!r}")
+        self._check_leg_limit()
         for m in self.methods:
             if m not in METHODS:
                 raise ValueError(f"methods: unknown method {m!r}; choose from {', '.join(METHODS)}")
@@ -234,6 +236,23 @@ class SweepConfig:
         if len({c.name for c in self.cells()}) != len(self.cells()):
             raise ValueError(f"obstacle_heights_m: heights closer than 1 nm give the same cell names: "
                              f"{list(self.obstacle_heights_m)}")
+
+    def _check_leg_limit(self) -> None:
+        """The tallest height within what the leg can clear at all (as ``learn``'s
+        :func:`hil.experiments.learn.check_heights`; without importing the simulation)."""
+        from dataclasses import replace as _replace
+
+        from controller.config import ControllerConfig
+        from controller.motion.reach import check_height
+
+        c = self.conditions
+        ctl = ControllerConfig()
+        gait = _replace(ctl.gait, ground_speed_m_s=c.believed_rail_speed_m_s or c.rail_speed_m_s)
+        try:
+            check_height(max(self.obstacle_heights_m), c.obstacle_depth_m, geometry=ctl.geometry, axes=ctl.axes,
+                         cpg=ctl.cpg, gait=gait)
+        except ValueError as exc:
+            raise ValueError(f"obstacle_heights_m: {exc}") from None
 
     def cells(self) -> list[Cell]:
         return grid(self.methods, self.obstacle_heights_m, self.mixed_heights, self.seeds, self.trials,

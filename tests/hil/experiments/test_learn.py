@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -87,3 +88,101 @@ def test_analyze_reads_learn_folders_and_refuses_others(tmp_path, capsys):
     assert figures["runs"][0]["trials"] == 2 and len(figures["footfall_std_m_by_steps_before"]) == 4
     assert main(["analyze", str(tmp_path / "nothing")]) == 3
     assert "no metrics.json" in capsys.readouterr().err
+
+
+# -- issue 18: contacts in every record, stalls, the leg's limit, a premotor's lift ----------------
+
+def test_contact_misses_count_the_contacts_no_reflex_heard():
+    from hil.experiments.learn import MISS_SLACK_S, contact_misses
+
+    contacts = [[1.0, 1.1], [1.5, 1.6], [3.0, 3.0]]
+    assert contact_misses(contacts, [], 1.0) == 3
+    assert contact_misses(contacts, [1.001], 1.0) == 1  # the second is the same collision, still refractory
+    assert contact_misses(contacts, [1.1 + MISS_SLACK_S], 0.0) == 2  # heard just after it ended
+    assert contact_misses(contacts, [1.1 + 2 * MISS_SLACK_S], 0.0) == 3  # too late: another event
+    assert contact_misses(contacts, [0.5, 2.5], 0.2) == 3
+
+
+def test_every_record_carries_its_contacts_and_the_misses_are_counted():
+    m = run_learning(LearnConfig(trials=4, seed=3))
+    for t in m["trials"]:
+        assert t["success"] == (not t["contacts"] and not t["stalled"])
+        assert 0 <= t["contact_misses"] <= len(t["contacts"])
+        assert all(0.0 < a <= b < t["sim_s"] for a, b in t["contacts"])
+    assert m["summary"]["contact_misses"] == sum(t["contact_misses"] for t in m["trials"])
+    assert any(t["contacts"] for t in m["trials"])  # seed 3 fails at first: something was counted
+
+
+def test_a_carriage_caught_on_the_block_ends_the_trial_as_a_stalled_mistake():
+    # 0.21 m: within the leg's limit, beyond what the hardwired lift clears; seed 0 wedges the foot
+    # on the block in its second trial (the carriage stopped: without the deadline it never ended)
+    m = run_learning(LearnConfig(trials=2, seed=0, obstacle_height_m=0.21))
+    stalled = [t for t in m["trials"] if t["stalled"]]
+    assert stalled and not any(t["success"] for t in stalled)
+    from hil.experiments.learn import STALL_S
+
+    for t in stalled:
+        assert t["sim_s"] > STALL_S
+
+
+def test_heights_beyond_the_legs_limit_are_refused_with_the_reason():
+    with pytest.raises(ValueError, match=r"obstacle height: 0\.240 m is above the leg's 0\.223 m limit .*knee"):
+        LearnConfig(obstacle_heights_m=(0.08, 0.24))
+    with pytest.raises(ValueError, match="0.216 m limit"):  # a deeper block: a lower limit
+        LearnConfig(obstacle_height_m=0.22, obstacle_depth_m=0.20)
+    assert LearnConfig(obstacle_height_m=0.22).obstacle_height_m == 0.22
+
+
+def test_the_loop_takes_a_premotors_lift_within_its_bounds_and_gives_it_each_reflex_in_full():
+    from controller.loop import MAX_LIFT_AMPLITUDE, MIN_LIFT_AMPLITUDE
+    from controller.stepping.learner import AdaptivePremotor
+    from hil.experiments.learn import LearningRun
+
+    class Lifting:  # the controller's premotor, by composition (a compiled class takes no Python subclass)
+        def __init__(self, asked: float) -> None:
+            self.inner = AdaptivePremotor(28, 0.3)
+            self.weights = self.inner.weights
+            self.on_step_onset, self.burst_s, self.gated_weight = (
+                self.inner.on_step_onset, self.inner.burst_s, self.inner.gated_weight)
+            self.asked, self.heard = asked, []
+
+        def on_reflex(self, kind, now_s):
+            self.inner.on_reflex(kind, now_s)
+
+        def lift_amplitude(self, gated_range_m, context):
+            return self.asked
+
+        def on_contact_reflex(self, reflex):
+            self.heard.append(reflex)
+
+    heard = 0
+    for asked, expected in ((2.5, 2.5), (9.0, MAX_LIFT_AMPLITUDE), (0.2, MIN_LIFT_AMPLITUDE), (math.nan, None)):
+        p = Lifting(asked)
+        run = LearningRun(LearnConfig(trials=2, seed=3), premotor=p)
+        try:
+            run.run()
+            amplitudes = {s.amplitude for s in run.ls.loop.stats.steps}
+            if expected is None:  # a NaN: the hardwired reflex's
+                assert amplitudes == {1.0, run.config.controller.reflexes.lift_amplitude}
+            else:
+                assert amplitudes == {expected}, asked
+            assert p.heard == run.ls.loop.stats.reflexes  # every reflex, in full
+            assert not p.weights.any()  # on_reflex was not called as well
+            heard += len(p.heard)
+        finally:
+            run.close()
+    assert heard  # (some run had a reflex to hear)
+
+
+def test_the_oracle_lifts_for_the_true_height_and_as_before_at_low_ones():
+    from hil.experiments.oracle import OraclePremotor
+
+    ctl = LearnConfig().controller
+    height = [0.16]
+    o = OraclePremotor(ctl, lambda: 1.0, height=lambda: height[0])
+    assert o.lift_amplitude(0.3, 0) == pytest.approx((0.16 + 0.07) / 0.08)
+    assert o.lift_amplitude(0.5, 0) == 1.0  # beyond the lift range: no lift, as the reflex
+    height[0] = 0.08
+    assert o.lift_amplitude(0.3, 0) == ctl.reflexes.lift_amplitude  # the hardwired lift
+    height[0] = 0.22
+    assert o.lift_amplitude(0.3, 0) < (0.22 + 0.07) / 0.08  # within the leg's limit (3.44)

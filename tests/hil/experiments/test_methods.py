@@ -12,7 +12,7 @@ from hil.experiments.learn import LearnConfig, learn_config
 
 
 def test_the_registry_names_every_method_once():
-    assert methods.METHODS == ("paper", "context", "none", "oracle", "rl")
+    assert methods.METHODS == ("paper", "context", "none", "oracle", "rl", "improved")
     assert set(methods.DEFAULT_SWEEP_METHODS) <= set(methods.METHODS)
     assert methods.DEFAULT_METHOD == "paper" == LearnConfig().method
     for name, m in methods.REGISTRY.items():
@@ -41,16 +41,25 @@ def test_learn_config_of_each_method():
 
 
 def test_the_builders_give_the_premotor_of_each_method():
+    from controller.motion.reach import max_lift_amplitude
     from controller.stepping.context import ContextPremotor
+    from controller.stepping.improved import ImprovedPremotor
     from controller.stepping.rl import QLearningPremotor
     from hil.experiments.oracle import OraclePremotor
 
     ctl = LearnConfig().controller
-    built = {n: methods.get(n).build(ctl, methods.get(n).learns, 0, lambda: None) for n in methods.METHODS}
+    built = {n: methods.get(n).build(ctl, methods.get(n).learns, 0, lambda: None, lambda: None)
+             for n in methods.METHODS}
     assert built["paper"] is None and built["none"] is None  # the controller's own premotor
     assert isinstance(built["oracle"], OraclePremotor)
     assert isinstance(built["rl"], QLearningPremotor)
     assert isinstance(built["context"], ContextPremotor)
+    improved = built["improved"]
+    assert isinstance(improved, ImprovedPremotor)
+    # its lift starts at the hardwired reflex's and may rise to the leg's limit (0.275 m held / 0.08 m)
+    assert improved.config.lift_amplitude == ctl.reflexes.lift_amplitude
+    assert improved.config.lift_max == pytest.approx(max_lift_amplitude(geometry=ctl.geometry, axes=ctl.axes))
+    assert 3.3 < improved.config.lift_max < 3.5
 
 
 def test_parsing_method_names_imports_no_simulation():

@@ -1,0 +1,210 @@
+"""The improved learner: the paper's gated memory, traces and reflex supervision, learning faster,
+with the height as context and the last step's clearance learned (issue 18; method ``improved``).
+
+Everything the paper's learner (:mod:`controller.stepping.learner`) does, it does: at each step
+onset the encoder's cell is gated into a one-hot short-term memory that decays as
+``exp(-t / stm_tau_s)``; the burst is ``base + w * STM(t)``; every gate activates a synaptic trace
+that decays as ``exp(-t / trace_tau_s)``; an extension reflex moves the traced weights up, a
+placement reflex down. There is no model of the world: no distance is computed, nothing is
+planned. What it adds, each for a reason measured on the tuning seeds (0-99, docs/improved.md):
+
+1. **Context** (the paper's "object size should be used to give the weights a certain context"):
+   one row of weights per height bin of the profile beams (:mod:`controller.stepping.height`), as
+   the context learner has; a gate with an unknown context uses row 0.
+2. **Credit shaped over neighbouring cells.** The paper's cells do not overlap, so each of the
+   28 cells must be trained by its own mistakes, and a trial gates only the last three: most
+   early mistakes happen in cells never trained. A gate here also activates the traces of the
+   cells beside the gated one, by ``exp(-k^2 / (2 spread_cells^2))`` for ``k`` cells away (up to
+   ``3 spread_cells``): a reflex trains the neighbourhood of each decision, which the next trials
+   meet at slightly different distances. The memory, and so the burst, stays one-hot: only the
+   credit is spread.
+3. **A learning rate that falls as a synapse is trained**: each weight's step is
+   ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it has been trained with so
+   far: the first mistakes move the map far, later ones refine it, so a late unlucky trial cannot
+   undo what many trials taught.
+4. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
+   the step height whatever the obstacle. Here each context has its own amplitude, starting at
+   the hardwired one; a contact reflex in the rising part of the swing (the shin or the foot
+   struck something in the air before ``lift_phase``) means "lift higher": that context's
+   amplitude rises by ``lift_step``, up to ``lift_max``, which the method's builder computes from
+   the leg's joint and torque limits (:func:`controller.motion.reach.max_clearable_height_m`'s
+   ``held_height_m``: the highest the foot can be held at all). The amplitude applies, as the
+   hardwired reflex does, to the step cycle whose gate sees the obstacle within ``lift_range_m``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.settings.schema import check_settings, setting
+from controller.stepping.learner import GatedMemory, SynapticTraces
+from controller.stepping.reflexes import Reflex
+
+
+@dataclass(frozen=True)
+class ImprovedConfig:
+    """The improved learner's settings (defaults tuned on seeds 0-99 only)."""
+
+    stm_tau_s: float = setting(1.5, "s", 0.01, 60.0, "short-term memory decay")
+    trace_tau_s: float = setting(2.5, "s", 0.01, 60.0, "synaptic trace decay")
+    learning_rate_s: float = setting(0.3, "s", 0.0, 1.0, "first weight change per unit trace per reflex")
+    settle_reflexes: float = setting(0.0, "(trace units)", 0.0, 1000.0,
+                                     "training after which a synapse's rate halves (0: the rate never falls)")
+    spread_cells: float = setting(1.5, "cells", 0.0, 10.0, "width of the credit over neighbouring cells (0: none)")
+    spread_fade: float = setting(5.0, "reflexes", 0.1, 1000.0,
+                                 "reflexes after which every neighbour's credit has halved")
+    spread_settle: float = setting(1.0, "(trace units)", 0.01, 1000.0,
+                                   "own training after which a cell takes half its neighbours' credit")
+    weight_limit_s: float = setting(0.5, "s", 0.001, 2.0, "bound on each weight's magnitude")
+    flip_at: float = setting(2.0, "(fraction of the bound)", 0.0, 2.0,
+                             "a reflex asking more of weights this near their bound asks the opposite (above 1: never)")
+    too_close_s: float = setting(1.5, "s", 0.0, 10.0,
+                                 "a reflex this soon after the last gate that held a cell, none held since: too close")
+    lift_amplitude: float = setting(1.9, "x step height", 1.0, 5.0, "every context's lift before any learning")
+    lift_step: float = setting(0.3, "x step height", 0.0, 2.0, "lift added by a contact on the way up")
+    lift_max: float = setting(3.4, "x step height", 1.0, 5.0, "highest lift (the builder: from the leg's limits)")
+    lift_phase: float = setting(0.5, "(fraction of the swing)", 0.0, 1.0, "a swing contact before this means too low")
+    lift_range_m: float = setting(0.40, "m", 0.0, 3.0, "gated range below which the lift applies")
+    learning: bool = setting(True, doc="false freezes the weights and the lifts")
+
+    def __post_init__(self) -> None:
+        check_settings(self, "improved")
+        if self.lift_amplitude > self.lift_max:
+            raise ValueError(f"improved.lift_amplitude must be at most improved.lift_max = {self.lift_max}, "
+                             f"got {self.lift_amplitude!r}")
+
+
+class ImprovedPremotor:
+    """Sets the CPG's burst length and lift from gated (context, cell) memory; learns both from
+    reflexes (the :class:`controller.stepping.premotor.LiftingPremotor` protocol).
+
+    ``n_contexts``: height contexts (:attr:`controller.stepping.height.HeightEstimatorConfig.n_contexts`);
+    ``n_cells``: the range encoder's cells; ``base_burst_s``: the burst with nothing gated [s].
+    Attributes read by experiments: ``weights`` (n_contexts x n_cells) [s], ``lifts`` (one
+    amplitude per context), ``lift_raises`` (how many reflexes raised a lift).
+    """
+
+    def __init__(self, n_contexts: int, n_cells: int, base_burst_s: float,
+                 config: ImprovedConfig = ImprovedConfig()) -> None:
+        if not (isinstance(n_contexts, int) and n_contexts >= 1 and isinstance(n_cells, int) and n_cells >= 1):
+            raise ValueError(f"n_contexts and n_cells must be positive integers, got {n_contexts!r}, {n_cells!r}")
+        self.config = config
+        self.base_burst_s = base_burst_s
+        self.n_contexts, self.n_cells = n_contexts, n_cells
+        self.weights = np.zeros((n_contexts, n_cells))
+        self.trained = np.zeros((n_contexts, n_cells))  # the trace each synapse was trained with so far
+        self.lifts = np.full(n_contexts, config.lift_amplitude)
+        self.lift_raises = 0
+        self.flips = 0
+        self.reflexes = 0  # stride reflexes learnt from
+        self.too_close = 0  # reflexes learnt as placement because the crossing's gate saw nothing
+        self._last_cell_gate_s = -math.inf
+        self.memory = GatedMemory(config.stm_tau_s)
+        self.traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)
+        self.own_traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)  # gated cells only
+        self.own_trained = np.zeros((n_contexts, n_cells))  # the own trace each cell was trained with
+        self.context: int | None = None  # the row of the cell held in STM
+        self._lift_row: int | None = None  # the row whose lift the current step cycle uses
+        reach = int(math.ceil(3.0 * config.spread_cells))
+        self._spread = [(k, math.exp(-k * k / (2.0 * config.spread_cells ** 2))) for k in range(-reach, reach + 1)] \
+            if config.spread_cells > 0.0 else [(0, 1.0)]
+
+    def _row(self, context: int | None) -> int:
+        if context is None:
+            return 0
+        if not 0 <= context < self.n_contexts:
+            raise ValueError(f"context must be None or in [0, {self.n_contexts - 1}], got {context!r}")
+        return int(context)
+
+    # -- the Premotor protocol -----------------------------------------------------------------
+    def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
+        row = self._row(context)
+        self.memory.gate(cell, now_s)
+        self.context = row if cell is not None else None
+        if cell is None:
+            return
+        self._last_cell_gate_s = now_s
+        base = row * self.n_cells
+        self.own_traces.activate(base + cell, now_s)
+        own = self.own_trained[row]
+        settle = self.config.spread_settle
+        fade = 1.0 / (1.0 + self.reflexes / self.config.spread_fade)
+        for k, amount in self._spread:
+            neighbour = cell + k
+            if 0 <= neighbour < self.n_cells:
+                if k != 0:  # a neighbour trained by its own mistakes takes less of this cell's credit
+                    amount *= fade / (1.0 + own[neighbour] / settle)
+                self.traces.activate(base + neighbour, now_s, amount)
+
+    def gated_weight(self) -> float:
+        cell = self.memory.cell
+        return 0.0 if cell is None or self.context is None else float(self.weights[self.context, cell])
+
+    def modulation_s(self, now_s: float) -> float:
+        cell = self.memory.cell
+        if cell is None:
+            return 0.0
+        return self.gated_weight() * self.memory.activity(now_s)
+
+    def burst_s(self, now_s: float) -> float:
+        if self.memory.cell is None:
+            return self.base_burst_s
+        return self.base_burst_s + self.modulation_s(now_s)
+
+    def on_reflex(self, kind: str, now_s: float) -> None:
+        """The stride part of a reflex (extension: longer strides, placement: shorter)."""
+        if kind not in ("extension", "placement"):
+            raise ValueError(f"unknown reflex kind {kind!r}")
+        c = self.config
+        if not c.learning or c.learning_rate_s == 0.0:
+            return
+        traces = self.traces.at(now_s).reshape(self.weights.shape)
+        total = float(traces.sum())
+        if total > 0.0 and c.flip_at <= 1.0:
+            traced_weight = float((traces * self.weights).sum()) / total
+            if kind == "extension" and traced_weight >= c.flip_at * c.weight_limit_s:
+                kind = "placement"
+                self.flips += 1
+            elif kind == "placement" and traced_weight <= -c.flip_at * c.weight_limit_s:
+                kind = "extension"
+                self.flips += 1
+        rate = c.learning_rate_s if c.settle_reflexes == 0.0 else c.learning_rate_s / (
+            1.0 + self.trained / c.settle_reflexes)
+        sign = 1.0 if kind == "extension" else -1.0
+        self.weights += sign * rate * traces
+        np.clip(self.weights, -c.weight_limit_s, c.weight_limit_s, out=self.weights)
+        self.trained += traces
+        self.reflexes += 1
+        self.own_trained += self.own_traces.at(now_s).reshape(self.weights.shape)
+
+    # -- the lift --------------------------------------------------------------------------------
+    def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
+        if gated_range_m is None or not gated_range_m < self.config.lift_range_m:
+            self._lift_row = None
+            return 1.0
+        self._lift_row = self._row(context)
+        return float(self.lifts[self._lift_row])
+
+    def on_contact_reflex(self, reflex: Reflex) -> None:
+        """A reflex in full: the stride learns from its kind, except when the crossing's own gate
+        held no cell although the gate before it did (the obstacle was already nearer than the
+        encoder reaches: the foot came down at its foot or against it, and every stride was too
+        long; the phase may say "extension", lengthening would make it worse): then it learns
+        "placement". A contact on the way up (in the swing before ``lift_phase``, of a step cycle
+        that lifted) also raises that context's lift."""
+        c = self.config
+        kind = reflex.kind
+        if self.memory.cell is None and reflex.t_s - self._last_cell_gate_s < c.too_close_s:
+            kind = "placement"
+            self.too_close += 1
+        if (c.learning and reflex.swing and reflex.phase < c.lift_phase and reflex.cause in ("shin", "foot_in_air")
+                and self._lift_row is not None):
+            row = self._lift_row
+            raised = min(c.lift_max, float(self.lifts[row]) + c.lift_step)
+            if raised > self.lifts[row]:
+                self.lifts[row] = raised
+                self.lift_raises += 1
+        self.on_reflex(kind, reflex.t_s)

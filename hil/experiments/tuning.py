@@ -1,0 +1,127 @@
+"""Tuning the improved learner: its settings tried on the tuning seeds, never on the held-out ones.
+
+The project's held-out discipline (docs/improved.md): settings are chosen on seeds 0-99 only and
+every figure reported on seeds 1000-1019, which no tuning run may touch. This module is how the
+improved learner's defaults were chosen, and it refuses any seed outside 0-99::
+
+    python -m hil.experiments.tuning --seeds 20-39 --set spread_fade=5 --set weight_limit_s=0.5
+
+runs 150 trials (``--trials``) of the ``improved`` method for each seed with those
+:class:`controller.stepping.improved.ImprovedConfig` settings (the rest its defaults), on
+``--workers`` processes, and prints one line per seed (trials to criterion, success over all
+trials, mistakes after trial 50 and after trial 100, the failed trials) and a summary line.
+``--heights`` mixes heights per trial (the last 50 trials' success per height is printed).
+
+May import what :mod:`hil.experiments` may.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from collections import defaultdict
+from typing import Any
+
+TUNING_SEEDS = range(0, 100)
+"""The only seeds a tuning run may use (1000-1019 are for reporting)."""
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0-9``, ``3,5,7`` or a mix; every seed must be a tuning seed."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.strip().partition("-")
+        seeds.extend(range(int(lo), int(hi) + 1) if hi else [int(lo)])
+    outside = [s for s in seeds if s not in TUNING_SEEDS]
+    if outside or not seeds:
+        raise ValueError(f"tuning takes seeds 0-99 only (held-out seeds are for reporting): got {outside or text!r}")
+    return seeds
+
+
+def parse_settings(items: list[str]) -> dict[str, Any]:
+    """``name=value`` pairs (values as JSON: numbers, true/false), checked by ImprovedConfig."""
+    from controller.stepping.improved import ImprovedConfig
+
+    settings: dict[str, Any] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--set {item!r}: give name=value")
+        settings[name.strip()] = json.loads(value)
+    ImprovedConfig(**settings)  # unknown names (TypeError) and out-of-range values (ValueError)
+    return settings
+
+
+def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[float, ...]) -> dict[str, Any]:
+    """One tuning run: the ``improved`` method with ``settings``."""
+    from controller.stepping.improved import ImprovedConfig, ImprovedPremotor
+    from hil.analysis.stats import trials_to_criterion
+    from hil.experiments.learn import LearnConfig, LearningRun
+    from hil.experiments.methods import lift_max
+
+    config = LearnConfig(seed=seed, trials=trials, method="improved", obstacle_height_m=heights[0],
+                         obstacle_heights_m=heights if len(heights) > 1 else ())
+    ctl = config.controller
+    improved = ImprovedConfig(**{"lift_amplitude": ctl.reflexes.lift_amplitude,
+                                 "lift_range_m": ctl.reflexes.lift_range_m, "lift_max": lift_max(ctl), **settings})
+    premotor = ImprovedPremotor(ctl.height.n_contexts, ctl.encoder.n_cells, ctl.cpg.burst_s, improved)
+    run = LearningRun(config, premotor=premotor)
+    try:
+        records = run.run()
+    finally:
+        run.close()
+    success = [t["success"] for t in records]
+    return {"seed": seed, "trials_to_criterion": trials_to_criterion(success),
+            "success": sum(success) / len(success), "mistakes_after_50": success[50:].count(False),
+            "mistakes_after_100": success[100:].count(False),
+            "failed": [i for i, ok in enumerate(success) if not ok],
+            "late_by_height": [(t["obstacle_height_m"], t["success"]) for t in records[-50:]],
+            "contact_misses": sum(t["contact_misses"] for t in records)}
+
+
+def _one(args: tuple[int, int, dict[str, Any], tuple[float, ...]]) -> dict[str, Any]:
+    return run_seed(*args)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m hil.experiments.tuning", description=__doc__.split("\n")[0])
+    p.add_argument("--seeds", default="0-9", help="tuning seeds (0-99 only), e.g. 20-39")
+    p.add_argument("--trials", type=int, default=150)
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="an ImprovedConfig setting")
+    p.add_argument("--heights", default="0.08", help="obstacle heights [m], comma list (several: mixed per trial)")
+    p.add_argument("--workers", type=int, default=2)
+    args = p.parse_args(argv)
+    try:
+        seeds = parse_seeds(args.seeds)
+        settings = parse_settings(args.set)
+        heights = tuple(float(h) for h in args.heights.split(","))
+    except (ValueError, TypeError) as exc:
+        print(f"tuning: error: {exc}", file=sys.stderr)
+        return 2
+    from multiprocessing import Pool
+
+    with Pool(args.workers) as pool:
+        results = pool.map(_one, [(s, args.trials, settings, heights) for s in seeds])
+    late: dict[float, list[bool]] = defaultdict(list)
+    for r in results:
+        print(r["seed"], r["trials_to_criterion"], f"{r['success']:.3f}", r["mistakes_after_50"],
+              r["mistakes_after_100"], r["failed"][:15])
+        for h, ok in r["late_by_height"]:
+            late[h].append(ok)
+    ttc = [r["trials_to_criterion"] if r["trials_to_criterion"] is not None else 10**6 for r in results]
+    n = len(results)
+    print(f"SUMMARY {settings} trials to criterion median {statistics.median(ttc)}, mean success "
+          f"{statistics.mean(r['success'] for r in results):.3f}, no mistake after 100 on "
+          f"{sum(r['mistakes_after_100'] == 0 for r in results)}/{n}, after 50 on "
+          f"{sum(r['mistakes_after_50'] == 0 for r in results)}/{n}, contact misses "
+          f"{sum(r['contact_misses'] for r in results)}")
+    if len(heights) > 1:
+        for h in sorted(late):
+            print(f"  height {h:g} m: last 50 trials {sum(late[h])}/{len(late[h])}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

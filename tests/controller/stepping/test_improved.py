@@ -1,0 +1,119 @@
+"""The improved learner (controller.stepping.improved): the paper's gate, memory and rule, with
+context, credit over neighbouring cells that fades, the too-close rule and the learned lift."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.stepping.improved import ImprovedConfig, ImprovedPremotor
+from controller.stepping.reflexes import Reflex
+
+BASE = 0.3
+
+
+def premotor(**config) -> ImprovedPremotor:
+    return ImprovedPremotor(4, 28, BASE, ImprovedConfig(**config))
+
+
+def reflex(kind: str, t_s: float, cause: str = "foot_on_top", swing: bool = True, phase: float = 0.9) -> Reflex:
+    return Reflex(kind, t_s, cause, swing, phase)
+
+
+def test_the_memory_is_one_hot_but_the_credit_reaches_the_neighbours():
+    p = premotor(spread_cells=1.5, stm_tau_s=1.0)
+    p.weights[1, 10], p.weights[1, 11] = 0.2, 0.3
+    p.on_step_onset(0.0, 10, context=1)
+    assert p.burst_s(0.0) == pytest.approx(BASE + 0.2)  # only the gated cell's weight drives the burst
+    assert p.burst_s(1.0) == pytest.approx(BASE + 0.2 * math.exp(-1.0))
+    traces = p.traces.at(0.0).reshape(4, 28)
+    assert traces[1, 10] == 1.0
+    assert traces[1, 11] == pytest.approx(math.exp(-1 / (2 * 1.5 ** 2)))
+    assert traces[1, 15] > 0.0 and traces[1, 16] == 0.0  # up to 3 widths away (4.5 cells: 5)
+    assert traces[0].sum() == 0.0 and traces[2].sum() == 0.0  # another context is untouched
+
+
+def test_extension_lengthens_placement_shortens_the_traced_weights_within_the_bound():
+    p = premotor(spread_cells=0.0, learning_rate_s=0.3, weight_limit_s=0.4)
+    p.on_step_onset(0.0, 5, context=0)
+    p.on_reflex("extension", 0.0)
+    assert p.weights[0, 5] == pytest.approx(0.3) and np.count_nonzero(p.weights) == 1
+    p.on_reflex("extension", 0.0)
+    assert p.weights[0, 5] == pytest.approx(0.4)  # bounded
+    p.on_reflex("placement", 0.0)
+    assert p.weights[0, 5] == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="reflex kind"):
+        p.on_reflex("sneeze", 0.0)
+
+
+def test_the_neighbours_credit_fades_with_the_reflexes_and_with_their_own_training():
+    p = premotor(spread_cells=1.0, spread_fade=2.0, spread_settle=1.0)
+    first = []
+    for _ in range(4):
+        p.on_step_onset(p.traces.t_s + 100.0, 10, context=0)  # the old traces have decayed away
+        first.append(float(p.traces.at(p.traces.t_s)[11]))
+        p.on_reflex("extension", p.traces.t_s)
+    assert first[0] == pytest.approx(math.exp(-0.5))
+    assert first[1] < first[0] and first[2] < first[1]  # fewer credit as reflexes accumulate
+    q = premotor(spread_cells=1.0, spread_fade=1000.0, spread_settle=1.0)
+    q.on_step_onset(0.0, 11, context=0)
+    q.on_reflex("extension", 0.0)  # cell 11 trained by its own mistake
+    q.on_step_onset(100.0, 10, context=0)
+    assert q.traces.at(100.0)[11] == pytest.approx(math.exp(-0.5) / (1.0 + 1.0), rel=1e-3)
+    assert q.traces.at(100.0)[9] == pytest.approx(math.exp(-0.5), rel=1e-3)
+
+
+def test_a_reflex_after_a_gate_that_saw_nothing_is_learnt_as_placement():
+    p = premotor(spread_cells=0.0)
+    p.on_step_onset(0.0, 3, context=0)
+    p.on_step_onset(0.7, None, context=None)  # the crossing's gate: the obstacle nearer than any cell
+    p.on_contact_reflex(reflex("extension", 1.2))  # the phase says extension
+    assert p.weights[0, 3] < 0.0 and p.too_close == 1
+    r = premotor(spread_cells=0.0)
+    r.on_step_onset(0.0, 3, context=0)
+    r.on_contact_reflex(reflex("extension", 0.5))  # the gate held a cell: the phase decides
+    assert r.weights[0, 3] > 0.0 and r.too_close == 0
+
+
+def test_a_contact_on_the_way_up_raises_that_contexts_lift_up_to_the_leg_limit():
+    p = premotor(lift_amplitude=1.9, lift_step=0.5, lift_max=2.6, lift_range_m=0.4)
+    assert p.lift_amplitude(0.6, 2) == 1.0  # too far: no lift
+    assert p.lift_amplitude(None, None) == 1.0
+    assert p.lift_amplitude(0.3, 2) == 1.9
+    p.on_contact_reflex(reflex("placement", 1.0, cause="shin", swing=True, phase=0.2))
+    assert p.lifts.tolist() == [1.9, 1.9, 2.4, 1.9] and p.lift_raises == 1
+    p.on_contact_reflex(reflex("placement", 3.0, cause="foot_in_air", swing=True, phase=0.3))
+    assert p.lifts[2] == pytest.approx(2.6)  # capped at lift_max
+    p.on_contact_reflex(reflex("placement", 5.0, cause="shin", swing=True, phase=0.3))
+    assert p.lifts[2] == pytest.approx(2.6) and p.lift_raises == 2
+    assert p.lift_amplitude(0.3, 2) == pytest.approx(2.6)
+    for late in (reflex("extension", 7.0, cause="foot_on_top", swing=True, phase=0.95),   # landed on top
+                 reflex("placement", 7.0, cause="shin", swing=False, phase=0.7)):         # stance: too close
+        before = p.lifts.copy()
+        p.lift_amplitude(0.3, 1)
+        p.on_contact_reflex(late)
+        assert (p.lifts == before).all()
+    p.lift_amplitude(0.9, 1)  # a cycle that did not lift: a contact cannot be "too low"
+    p.on_contact_reflex(reflex("placement", 9.0, cause="shin", swing=True, phase=0.2))
+    assert p.lifts[1] == 1.9
+
+
+def test_frozen_learns_nothing():
+    p = premotor(learning=False)
+    p.on_step_onset(0.0, 3, context=0)
+    p.lift_amplitude(0.3, 0)
+    p.on_contact_reflex(reflex("placement", 0.1, cause="shin", swing=True, phase=0.1))
+    assert not p.weights.any() and (p.lifts == 1.9).all()
+
+
+def test_bad_settings_and_contexts_are_refused():
+    with pytest.raises(ValueError, match="lift_max"):
+        ImprovedConfig(lift_amplitude=3.0, lift_max=2.0)
+    with pytest.raises(ValueError, match="spread_cells"):
+        ImprovedConfig(spread_cells=-1.0)
+    with pytest.raises(ValueError, match="context"):
+        premotor().on_step_onset(0.0, 3, context=9)
+    with pytest.raises(ValueError, match="positive integers"):
+        ImprovedPremotor(0, 28, BASE)
