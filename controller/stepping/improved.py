@@ -59,10 +59,8 @@ class ImprovedConfig:
     spread_settle: float = setting(1.0, "(trace units)", 0.01, 1000.0,
                                    "own training after which a cell takes half its neighbours' credit")
     weight_limit_s: float = setting(0.5, "s", 0.001, 2.0, "bound on each weight's magnitude")
-    flip_at: float = setting(2.0, "(fraction of the bound)", 0.0, 2.0,
+    flip_at: float = setting(0.95, "(fraction of the bound)", 0.0, 2.0,
                              "a reflex asking more of weights this near their bound asks the opposite (above 1: never)")
-    too_close_s: float = setting(1.5, "s", 0.0, 10.0,
-                                 "a reflex this soon after the last gate that held a cell, none held since: too close")
     lift_amplitude: float = setting(1.9, "x step height", 1.0, 5.0, "every context's lift before any learning")
     lift_step: float = setting(0.3, "x step height", 0.0, 2.0, "lift added by a contact on the way up")
     lift_max: float = setting(3.4, "x step height", 1.0, 5.0, "highest lift (the builder: from the leg's limits)")
@@ -101,7 +99,7 @@ class ImprovedPremotor:
         self.flips = 0
         self.reflexes = 0  # stride reflexes learnt from
         self.too_close = 0  # reflexes learnt as placement because the crossing's gate saw nothing
-        self._last_cell_gate_s = -math.inf
+        self._gate_before_had_cell = False  # did the gate before the last one hold a cell?
         self.memory = GatedMemory(config.stm_tau_s)
         self.traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)
         self.own_traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)  # gated cells only
@@ -122,11 +120,11 @@ class ImprovedPremotor:
     # -- the Premotor protocol -----------------------------------------------------------------
     def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
         row = self._row(context)
+        self._gate_before_had_cell = self.memory.cell is not None
         self.memory.gate(cell, now_s)
         self.context = row if cell is not None else None
         if cell is None:
             return
-        self._last_cell_gate_s = now_s
         base = row * self.n_cells
         self.own_traces.activate(base + cell, now_s)
         own = self.own_trained[row]
@@ -162,13 +160,15 @@ class ImprovedPremotor:
         if not c.learning or c.learning_rate_s == 0.0:
             return
         traces = self.traces.at(now_s).reshape(self.weights.shape)
-        total = float(traces.sum())
-        if total > 0.0 and c.flip_at <= 1.0:
-            traced_weight = float((traces * self.weights).sum()) / total
-            if kind == "extension" and traced_weight >= c.flip_at * c.weight_limit_s:
+        cell = self.memory.cell
+        if c.flip_at <= 1.0 and cell is not None and self.context is not None:
+            # the swing this gate drove asked all the memory could and still fell short (or long):
+            # lengthening (shortening) cannot help; the other branch of the stride map can
+            held = float(self.weights[self.context, cell])
+            if kind == "extension" and held >= c.flip_at * c.weight_limit_s:
                 kind = "placement"
                 self.flips += 1
-            elif kind == "placement" and traced_weight <= -c.flip_at * c.weight_limit_s:
+            elif kind == "placement" and held <= -c.flip_at * c.weight_limit_s:
                 kind = "extension"
                 self.flips += 1
         rate = c.learning_rate_s if c.settle_reflexes == 0.0 else c.learning_rate_s / (
@@ -197,7 +197,7 @@ class ImprovedPremotor:
         that lifted) also raises that context's lift."""
         c = self.config
         kind = reflex.kind
-        if self.memory.cell is None and reflex.t_s - self._last_cell_gate_s < c.too_close_s:
+        if self.memory.cell is None and self._gate_before_had_cell:
             kind = "placement"
             self.too_close += 1
         if (c.learning and reflex.swing and reflex.phase < c.lift_phase and reflex.cause in ("shin", "foot_in_air")

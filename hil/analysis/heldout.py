@@ -9,7 +9,7 @@ seeds, per method:
 - the median trials to criterion, with a percentile bootstrap 95% interval (10,000 resamples of
   the seeds, seeded: the same table every time); a seed that never reached the criterion counts
   as the number of trials;
-- the mean success, with a t interval over the seeds;
+- the mean success, with a t interval over the seeds (cut to [0, 1]);
 - the share of seeds with no mistake after trial 100 and after trial 50, with Wilson 95% intervals;
 - per height (mixed heights): the success over the last 50 trials, pooled over the seeds, with a
   Wilson interval.
@@ -81,6 +81,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     n = len(rows)
     med, med_lo, med_hi = median_ci95([r["ttc_value"] for r in rows])
     mean, lo, hi = mean_ci95([[r["success"]] for r in rows])
+    lo[0], hi[0] = max(0.0, lo[0]), min(1.0, hi[0])  # a success rate's t interval, cut to [0, 1]
     clean_100 = sum(r["after_100"] == 0 for r in rows)
     clean_50 = sum(r["after_50"] == 0 for r in rows)
     heights: dict[float, list[int]] = defaultdict(lambda: [0, 0])

@@ -75,6 +75,11 @@ def test_a_reflex_after_a_gate_that_saw_nothing_is_learnt_as_placement():
     r.on_step_onset(0.0, 3, context=0)
     r.on_contact_reflex(reflex("extension", 0.5))  # the gate held a cell: the phase decides
     assert r.weights[0, 3] > 0.0 and r.too_close == 0
+    q = premotor(spread_cells=0.0)
+    q.on_step_onset(0.0, None, context=None)
+    q.on_step_onset(0.7, None, context=None)  # two empty gates: after the obstacle, not too close
+    q.on_contact_reflex(reflex("extension", 1.2))
+    assert q.too_close == 0
 
 
 def test_a_contact_on_the_way_up_raises_that_contexts_lift_up_to_the_leg_limit():
@@ -117,3 +122,18 @@ def test_bad_settings_and_contexts_are_refused():
         premotor().on_step_onset(0.0, 3, context=9)
     with pytest.raises(ValueError, match="positive integers"):
         ImprovedPremotor(0, 28, BASE)
+
+
+def test_a_reflex_asking_more_of_a_saturated_gate_asks_the_other_branch():
+    p = premotor(spread_cells=0.0, weight_limit_s=0.5, flip_at=0.95, learning_rate_s=0.3)
+    p.weights[0, 7] = 0.5  # the gate's weight at its bound: the swing was as long as it could be
+    p.on_step_onset(0.0, 7, context=0)
+    p.on_contact_reflex(reflex("extension", 0.9))  # landed on the block all the same
+    assert p.weights[0, 7] == pytest.approx(0.5 - 0.3 * math.exp(-0.9 / 2.5)) and p.flips == 1  # an extra step instead
+    p.on_contact_reflex(reflex("extension", 2.0))  # below the bound now: the phase decides again
+    assert p.weights[0, 7] > 0.5 - 0.3 * math.exp(-0.9 / 2.5) and p.flips == 1
+    q = premotor(spread_cells=0.0, flip_at=2.0)  # above 1: never
+    q.weights[0, 7] = q.config.weight_limit_s
+    q.on_step_onset(0.0, 7, context=0)
+    q.on_contact_reflex(reflex("extension", 0.9))
+    assert q.weights[0, 7] == q.config.weight_limit_s and q.flips == 0

@@ -186,3 +186,14 @@ def test_the_oracle_lifts_for_the_true_height_and_as_before_at_low_ones():
     assert o.lift_amplitude(0.3, 0) == ctl.reflexes.lift_amplitude  # the hardwired lift
     height[0] = 0.22
     assert o.lift_amplitude(0.3, 0) < (0.22 + 0.07) / 0.08  # within the leg's limit (3.44)
+
+
+def test_a_kept_trial_of_before_the_contact_fields_is_checked_on_the_fields_it_has(tmp_path):
+    from hil.experiments.learn import NotReproduced, _check_rerun
+
+    rerun = {"index": 0, "success": True, "contacts": [], "stalled": False, "contact_misses": 0, "sim_s": 5.0}
+    _check_rerun(rerun, {"index": 0, "success": True, "sim_s": 5.0}, 0, tmp_path / "trials.jsonl")
+    with pytest.raises(NotReproduced, match="sim_s"):
+        _check_rerun(rerun, {"index": 0, "success": True, "sim_s": 5.5}, 0, tmp_path / "trials.jsonl")
+    with pytest.raises(NotReproduced):  # a kept record with the fields: checked on them too
+        _check_rerun(rerun, {**rerun, "contact_misses": 1}, 0, tmp_path / "trials.jsonl")
