@@ -303,7 +303,7 @@ class LearningRun:
             "contacts": contacts,
             "stalled": stalled,
             "contact_misses": contact_misses(contacts, [r.t_s - t0 for r in reflexes],
-                                             loop.config.reflexes.refractory_s),
+                                             c.controller.reflexes.refractory_s),
             "footfalls_m": [x - near for _, x in before],
             "burst_s": [s.burst_s for s in steps if not math.isnan(s.burst_s)],
             "gated_range_m": [s.gated_range_m for s in decided],

@@ -57,12 +57,13 @@ if TYPE_CHECKING:
 
 
 CONTROLLER_FIELDS = ("reflexes", "burst_s", "gated_range_m", "gated_cells", "gated_contexts", "modulation_s",
-                     "gated_decisions", "lift_steps")
+                     "gated_decisions", "lift_steps", "contact_misses")
 """The fields of a trial that come from the controller's records (the rest from the plant)."""
 
 
 def fill_from_records(trial: dict[str, Any], times: dict[str, float],
-                      records: dict[str, list[dict[str, Any]]], bursts: np.ndarray | None = None) -> dict[str, Any]:
+                      records: dict[str, list[dict[str, Any]]], bursts: np.ndarray | None = None,
+                      refractory_s: float | None = None) -> dict[str, Any]:
     """A trial of ``hil --clock sim``: the plant's half (``trial``, from :class:`hil.experiments.learn.
     LearningRun` run against the controller in another process, its controller fields empty)
     completed from the controller's records, exactly as ``LearningRun.trial`` computes them in
@@ -75,7 +76,12 @@ def fill_from_records(trial: dict[str, Any], times: dict[str, float],
     the decisions are the steps whose swing began before the crossing. A traced trial's burst
     lengths come from ``bursts`` (the controller's ``--bursts`` file: (tick time, burst length)
     rows): each sample's is the one after the last tick at or before it (within 1 ns: the sample's
-    time is rebuilt as t0 + its offset, and ticks are a period apart)."""
+    time is rebuilt as t0 + its offset, and ticks are a period apart). ``contact_misses`` is counted
+    again from the plant's ``contacts`` and these reflexes (``refractory_s``: the controller's
+    reflex setting, default :class:`~controller.stepping.reflexes.ReflexConfig`'s)."""
+    from controller.stepping.reflexes import ReflexConfig
+    from hil.experiments.learn import contact_misses
+
     t0, crossing, end = times["t0_s"], times["crossing_s"], times["end_s"]
     steps = [s for s in records.get("step", []) if t0 < s["onset_s"] <= end]
     started = [s for s in steps if s["swing_start_s"] is not None and s["swing_start_s"] <= end]
@@ -92,6 +98,10 @@ def fill_from_records(trial: dict[str, Any], times: dict[str, float],
         "gated_decisions": sum(1 for s in decided if s["modulation_s"] != 0.0),
         "lift_steps": sum(1 for s in steps if s["amplitude"] > 1.0),
     })
+    if "contacts" in trial:
+        out["contact_misses"] = contact_misses(
+            trial["contacts"], [r["t_s"] for r in out["reflexes"]],
+            ReflexConfig().refractory_s if refractory_s is None else refractory_s)
     if "trace" in trial:
         trace = dict(trial["trace"])
         if bursts is None or not len(bursts):
