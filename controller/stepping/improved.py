@@ -18,18 +18,26 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    ``3 spread_cells``): a reflex trains the neighbourhood of each decision, which the next trials
    meet at slightly different distances. The memory, and so the burst, stays one-hot: only the
    credit is spread.
-3. **A learning rate that falls as a synapse is trained**: each weight's step is
-   ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it has been trained with so
-   far: the first mistakes move the map far, later ones refine it, so a late unlucky trial cannot
-   undo what many trials taught.
-4. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
+3. **The too-close rule.** A reflex after a gate that held no cell, when the gate before it did
+   (the obstacle was already nearer than the encoder reaches: the foot came down at its foot,
+   every stride too long), is learnt as "placement" whatever its phase says: on this rig such a
+   landing's phase often says "extension", and lengthening makes it worse.
+4. **The other branch of a saturated gate** (``flip_at``). A reflex asking more of what the
+   gate's own weight already gives at ``flip_at`` of its bound (an extension while the weight
+   asks the longest swing) asks the opposite: that swing could not be longer, so the next
+   approach takes an extra, shorter step.
+5. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
    the step height whatever the obstacle. Here each context has its own amplitude, starting at
    the hardwired one; a contact reflex in the rising part of the swing (the shin or the foot
    struck something in the air before ``lift_phase``) means "lift higher": that context's
    amplitude rises by ``lift_step``, up to ``lift_max``, which the method's builder computes from
-   the leg's joint and torque limits (:func:`controller.motion.reach.max_clearable_height_m`'s
-   ``held_height_m``: the highest the foot can be held at all). The amplitude applies, as the
-   hardwired reflex does, to the step cycle whose gate sees the obstacle within ``lift_range_m``.
+   the leg's joint and torque limits (:func:`controller.motion.reach.max_lift_amplitude`: the
+   highest the foot can be held at all). The amplitude applies, as the hardwired reflex does, to
+   the step cycle whose gate sees the obstacle within ``lift_range_m``.
+
+A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
+``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
+to be tried, and off by default (0): with the spread it cost late mistakes on the tuning seeds.
 """
 
 from __future__ import annotations

@@ -206,3 +206,19 @@ def conditions_from(args: argparse.Namespace) -> Conditions:
 
 
 __all__ = ["Conditions", "SETTINGS", "add_arguments", "conditions_from", "option", "parse_text", "read_experiment"]
+
+
+def check_leg_limit(heights: tuple[float, ...], depth_m: float, controller: Any, what: str) -> None:
+    """Refuse (ValueError ``what: reason``) a height above what the leg can clear at all: the
+    limit of its joints, torques and longest swing for the obstacle's ``depth_m`` and the rail
+    speed the ``controller`` configuration is told (:func:`controller.motion.reach.check_height`,
+    docs/leg_limits.md), not of any reflex or learner; such an experiment would only count
+    mistakes. ``learn`` (:class:`hil.experiments.learn.LearnConfig`) and ``sweep``
+    (:class:`hil.experiments.sweep.SweepConfig`) both call it; the tallest height decides."""
+    from controller.motion.reach import check_height
+
+    try:
+        check_height(max(heights), depth_m, geometry=controller.geometry, axes=controller.axes, cpg=controller.cpg,
+                     gait=controller.gait)
+    except ValueError as exc:
+        raise ValueError(f"{what}: {exc}") from None

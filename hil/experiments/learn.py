@@ -41,7 +41,7 @@ from firmware_sim.leg import LegHardware
 from firmware_sim.plant import Obstacle, RigConfig
 from hil.analysis.metrics import (METRICS_FILE, METRICS_FORMAT, footfall_std_by_step, last_window, mistakes_101_150,
                                   read_metrics, window_success)
-from hil.experiments.conditions import Conditions
+from hil.experiments.conditions import Conditions, check_leg_limit
 from hil.experiments.journal import (LOCK_FILE, TRIALS_FILE, FolderLock, Journal, JournalWriter, prepare_folder,
                                      read_journal)
 from hil.lockstep.groundtruth import FootfallTracker
@@ -126,7 +126,8 @@ class LearnConfig:
             gait = replace(self.controller.gait, ground_speed_m_s=self.believed_rail_speed_m_s)
             object.__setattr__(self, "controller", replace(self.controller, gait=gait))
         Conditions.of_learn(self)  # the conditions' declared ranges (ValueError naming the condition)
-        check_heights(self)  # and within what the leg can clear at all
+        check_leg_limit(self.obstacle_heights_m or (self.obstacle_height_m,), self.obstacle_depth_m,
+                        self.controller, "obstacle height")  # and within what the leg can clear at all
         if not 1.0 <= self.trace_rate_hz <= 1000.0:
             raise ValueError(f"trace_rate_hz must be in [1, 1000] Hz, got {self.trace_rate_hz}")
 
@@ -141,22 +142,6 @@ class LearnConfig:
             ctl = replace(ctl, learner=replace(ctl.learner, learning=False))
         return LockstepConfig(seed=self.seed, rig=replace(RigConfig(), rail_speed_m_s=self.rail_speed_m_s),
                               hardware=replace(hw, sensor=sensor), controller=ctl)
-
-
-def check_heights(config: LearnConfig) -> None:
-    """Refuse (ValueError, with the reason) an obstacle taller than the leg can clear at all: the
-    limit of its joints, torques and longest swing for the obstacle's depth and the rail speed
-    the controller is told (:func:`controller.motion.reach.check_height`, docs/leg_limits.md), not
-    of any reflex or learner; such an experiment would only count mistakes."""
-    from controller.motion.reach import check_height
-
-    ctl = config.controller
-    for height in sorted(set(config.obstacle_heights_m or (config.obstacle_height_m,)), reverse=True)[:1]:
-        try:
-            check_height(height, config.obstacle_depth_m, geometry=ctl.geometry, axes=ctl.axes, cpg=ctl.cpg,
-                         gait=ctl.gait)
-        except ValueError as exc:
-            raise ValueError(f"obstacle height: {exc}") from None
 
 
 STALL_S = 5.0
@@ -239,7 +224,6 @@ class LearningRun:
         self._height_m = height
         t0 = ls.t_s
         n_steps0, n_reflex0, n_td0 = len(loop.stats.steps), len(loop.stats.reflexes), len(self.tracker.footfalls_x_m)
-        contact = False
         touching = False
         contacts: list[list[float]] = []  # [start, end] of each episode of contact [s], from t0
         trace: dict[str, list[float]] | None = None
@@ -266,7 +250,6 @@ class LearningRun:
                         contacts.append([ls.t_s - t0, ls.t_s - t0])
                     else:
                         contacts[-1][1] = ls.t_s - t0
-                    contact = True
                 touching = now_touching
             if trace is not None and n % every == 0:
                 fx, fz = plant.foot_position()
@@ -274,7 +257,7 @@ class LearningRun:
                 trace["foot_x_m"].append(fx - near)
                 trace["foot_z_m"].append(fz)
                 trace["burst_s"].append(loop.cpg.burst_s)
-                trace["contact"].append(bool(contact))
+                trace["contact"].append(bool(contacts))
             n += 1
             if on_step is not None:
                 on_step(ls)
@@ -293,7 +276,7 @@ class LearningRun:
         reflexes = loop.stats.reflexes[n_reflex0:]
         return {
             "index": index,
-            "success": not contact and not stalled,
+            "success": not contacts and not stalled,
             "start_distance_m": near - x0,
             "obstacle_height_m": height,
             "reflexes": [

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from controller.config import ControllerConfig
+from controller.stepping.reflexes import lift_amplitude
 
 
 @dataclass(frozen=True)
@@ -96,8 +97,6 @@ class OraclePremotor:
 
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
         """The hardwired reflex's rule for when to lift; how high from the true height."""
-        from controller.stepping.reflexes import lift_amplitude
-
         hardwired = lift_amplitude(self._reflexes, gated_range_m)
         h = self.height() if self.height is not None else None
         if hardwired == 1.0 or h is None or self._lift_max is None:

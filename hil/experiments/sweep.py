@@ -64,7 +64,7 @@ from controller.atomic import fsync_dir, write_json_atomic
 from controller.errors import InputError, check_stamp, stamp
 from hil.analysis.metrics import success_last
 from hil.analysis.stats import trials_to_criterion
-from hil.experiments.conditions import Conditions
+from hil.experiments.conditions import Conditions, check_leg_limit
 from hil.experiments.journal import FolderBusy, FolderLock, is_locked, prepare_folder
 from hil.experiments.methods import DEFAULT_SWEEP_METHODS, METHODS
 
@@ -238,21 +238,16 @@ class SweepConfig:
                              f"{list(self.obstacle_heights_m)}")
 
     def _check_leg_limit(self) -> None:
-        """The tallest height within what the leg can clear at all (as ``learn``'s
-        :func:`hil.experiments.learn.check_heights`; without importing the simulation)."""
+        """The tallest height within what the leg can clear at all, for the controller told the
+        sweep's rail speed (:func:`hil.experiments.conditions.check_leg_limit`, as ``learn``)."""
         from dataclasses import replace as _replace
 
         from controller.config import ControllerConfig
-        from controller.motion.reach import check_height
 
         c = self.conditions
         ctl = ControllerConfig()
-        gait = _replace(ctl.gait, ground_speed_m_s=c.believed_rail_speed_m_s or c.rail_speed_m_s)
-        try:
-            check_height(max(self.obstacle_heights_m), c.obstacle_depth_m, geometry=ctl.geometry, axes=ctl.axes,
-                         cpg=ctl.cpg, gait=gait)
-        except ValueError as exc:
-            raise ValueError(f"obstacle_heights_m: {exc}") from None
+        ctl = _replace(ctl, gait=_replace(ctl.gait, ground_speed_m_s=c.believed_rail_speed_m_s or c.rail_speed_m_s))
+        check_leg_limit(self.obstacle_heights_m, c.obstacle_depth_m, ctl, "obstacle_heights_m")
 
     def cells(self) -> list[Cell]:
         return grid(self.methods, self.obstacle_heights_m, self.mixed_heights, self.seeds, self.trials,
