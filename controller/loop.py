@@ -448,7 +448,7 @@ class ControlLoop:
             steps[-1].swing_start_s = now_s
         self._was_flexing = out.flexing
         self.last_cpg = out
-        x, z = self.trajectory.target(out)
+        x, z = self.trajectory.target(out, self.cpg.amplitude)
         hip, knee = inverse(self._geometry, x, z)
         send = self.io.send
         send(self.hip.pos_frame(self._hip_muscle(hip, dt)))

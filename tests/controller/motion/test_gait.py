@@ -1,0 +1,84 @@
+"""The swing's foot path: the half-sine at and below the hardwired lift, the tucked path above."""
+
+from __future__ import annotations
+
+import math
+
+from controller.config import default_axes
+from controller.motion.cpg import CpgConfig, CpgOutput
+from controller.motion.gait import FootTrajectory, GaitConfig, tuck_fraction
+from controller.motion.kinematics import LegGeometry, inverse
+
+GAIT, CPG, GEOMETRY = GaitConfig(), CpgConfig(), LegGeometry()
+PHASES = [i / 200 for i in range(201)]
+
+
+def swing(phase: float, drive: float) -> CpgOutput:
+    return CpgOutput(onset=False, flexing=True, phase=phase, flexor_drive=drive, step_index=7)
+
+
+def half_sine(phase: float, drive: float) -> tuple[float, float]:
+    """The swing as it was before the tucked one (the paper-faithful path), written out."""
+    x_front = GAIT.foot_ahead_m
+    x_back = GAIT.foot_ahead_m - GAIT.ground_speed_m_s * CPG.stance_s
+    z_ground = -(GEOMETRY.hip_height_m - GEOMETRY.foot_radius_m)
+    x = x_back + (x_front - x_back) * 0.5 * (1.0 - math.cos(math.pi * phase))
+    z = z_ground + GAIT.step_height_m * drive * math.sin(math.pi * phase)
+    return x, z
+
+
+def test_at_and_below_the_hardwired_lift_the_path_is_the_half_sine_float_for_float() -> None:
+    path = FootTrajectory(GAIT, CPG, GEOMETRY)
+    for amplitude in (1.0, 1.3, 1.9):
+        for phase in PHASES:
+            for rate in (0.0, 0.37, 1.0):
+                drive = amplitude * rate
+                assert path.target(swing(phase, drive), amplitude) == half_sine(phase, drive)
+                assert path.target(swing(phase, drive)) == half_sine(phase, drive)  # amplitude 1 by default
+    assert tuck_fraction(GAIT, 1.9) == 0.0 and tuck_fraction(GAIT, GAIT.tuck_full_amplitude) == 1.0
+
+
+def test_the_tuck_grows_continuously_from_the_hardwired_lift() -> None:
+    path = FootTrajectory(GAIT, CPG, GEOMETRY)
+    for phase in PHASES:
+        a = 1.9 + 1e-9
+        x, z = path.target(swing(phase, a), a)
+        x0, z0 = half_sine(phase, a)
+        assert abs(x - x0) < 1e-8 and abs(z - z0) < 1e-8
+    # a learner's +0.3 steps change the path by a bounded amount, not a jump
+    previous = None
+    for k in range(9):
+        a = 1.9 + 0.3 * k
+        xs = [path.target(swing(p, a), a) for p in PHASES]
+        if previous is not None:
+            assert max(math.hypot(x - px, z - pz) for (x, z), (px, pz) in zip(xs, previous)) < 0.06  # (the half-sine alone moves 0.024 m)
+        previous = xs
+
+
+def test_a_high_lift_raises_the_foot_early_and_stays_inside_the_joint_limits() -> None:
+    path = FootTrajectory(GAIT, CPG, GEOMETRY)
+    hip_axis, knee_axis = default_axes()
+    for amplitude in (2.2, 2.875, 3.125, 3.44):
+        for phase in PHASES:
+            x, z = path.target(swing(phase, amplitude), amplitude)
+            hip, knee = inverse(GEOMETRY, x, z)
+            assert hip_axis.min_rad - 1e-9 <= hip <= hip_axis.max_rad + 1e-9, (amplitude, phase, hip)
+            assert knee_axis.min_rad - 1e-9 <= knee <= knee_axis.max_rad + 1e-9, (amplitude, phase, knee)
+            assert math.hypot(x, z) <= GEOMETRY.thigh_m + GEOMETRY.shank_m
+        if amplitude >= GAIT.tuck_full_amplitude:
+            for phase in (0.1, 0.15, 0.2, 0.25, 0.3):  # early in the swing: higher than the half-sine
+                assert path.target(swing(phase, amplitude), amplitude)[1] > half_sine(phase, amplitude)[1] + 0.02
+            # and it holds the foot back early (the shank clears the near edge), forward by the end
+            assert path.target(swing(0.3, amplitude), amplitude)[0] < half_sine(0.3, amplitude)[0]
+        start = path.target(swing(0.0, amplitude), amplitude)
+        end = path.target(swing(1.0, amplitude), amplitude)
+        assert start == half_sine(0.0, amplitude) or math.isclose(start[0], half_sine(0.0, amplitude)[0])
+        assert math.isclose(end[0], GAIT.foot_ahead_m) and math.isclose(end[1], half_sine(1.0, amplitude)[1],
+                                                                          abs_tol=1e-12)
+
+
+def test_stance_is_unchanged_by_the_amplitude() -> None:
+    path = FootTrajectory(GAIT, CPG, GEOMETRY)
+    for phase in PHASES:
+        out = CpgOutput(onset=False, flexing=False, phase=phase, flexor_drive=0.1, step_index=2)
+        assert path.target(out, 3.44) == path.target(out) == path.target(out, 1.9)
