@@ -435,7 +435,8 @@ class ControlLoop:
             if steps and not math.isnan(steps[-1].swing_start_s):
                 steps[-1].swing_s = now_s - steps[-1].swing_start_s
             steps.append(self._gate(now_s))
-        reflex = self.reflexes.update(now_s, out, self.sensors.foot, self.sensors.shin, self._foot_height_m)
+        foot, shin = self.sensors.take_contacts()
+        reflex = self.reflexes.update(now_s, out, foot, shin, self._foot_height_m)
         if reflex is not None:
             self.stats.reflexes.append(reflex)
             if self._premotor_reflex is not None:

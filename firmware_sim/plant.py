@@ -311,7 +311,12 @@ class RigPlant:
         return pos[0], pos[2] - 0.02
 
     def obstacle_contact(self) -> bool:
-        """True while any leg link touches any obstacle.
+        """True while any leg link touches any obstacle: a contact point whose bodies touch or
+        overlap (contact distance at most 0) or press (normal force above 0).
+
+        PyBullet also reports points up to its contact margin apart, with no force: a foot
+        passing 0.4-0.7 mm above a block's edge is such a point (tuning seed 71). That is a near
+        miss, not a touch: no switch could close on it, and a trial is not failed by it.
 
         Answered from the leg's contact points that :meth:`contacts` read this step, when it did
         and no obstacle came or went since (PyBullet's ``getContactPoints(bodyA=leg, bodyB=b)`` is
@@ -322,12 +327,14 @@ class RigPlant:
         if self._points_fresh and self._contacts_t_s == self.t_s:
             bodies = [body for body, _ in obstacles]
             for pt in self._contact_points:
-                if pt[2] in bodies:
+                if pt[2] in bodies and (pt[8] <= 0.0 or pt[9] > 0.0):
                     return True
             return False
         for body, _ in obstacles:
-            if pybullet.getContactPoints(self.robot, body, -2, -2, self._cid):  # kwlist: see contacts
-                return True
+            # kwlist: see contacts
+            for pt in pybullet.getContactPoints(self.robot, body, -2, -2, self._cid):
+                if pt[8] <= 0.0 or pt[9] > 0.0:
+                    return True
         return False
 
     def render_rgb(self, width: int = 480, height: int = 320, target_x_m: float | None = None):

@@ -14,6 +14,11 @@ False (the frame is counted ``invalid`` and dropped by :class:`controller.io.bus
   [0, ``profile_max_m``] (or is NaN): rejected whole;
 - a contacts frame with a switch that is neither 0 nor 1.
 
+A switch that closes and opens again between two control ticks is not lost: the board sends a
+contacts frame at each change, and :meth:`SensorLink.take_contacts` answers closed for a switch
+that any accepted frame since the last call said closed (a latch the loop reads once a tick). The
+reflexes then hear a 1 ms brush of the shin as a real switch's interrupt latch would.
+
 Values are checked before the sequence number, so a bad frame does not move the counter.
 Filtering of the range (Kalman) belongs to the learner's range filter, and the height estimate
 to :mod:`controller.stepping.height`, not here.
@@ -62,6 +67,8 @@ class SensorLink:
         self.range_invalid = 0
         self.foot = False
         self.shin = False
+        self._foot_latched = False  # closed in some frame since take_contacts last ran
+        self._shin_latched = False
         self.contacts_seq = -1
         self.contacts_t_s = -math.inf
         self.contacts_lost = 0
@@ -168,8 +175,22 @@ class SensorLink:
         self.contacts_seq = int(seq)
         self.foot = bool(foot)
         self.shin = bool(shin)
+        if self.foot:
+            self._foot_latched = True
+        if self.shin:
+            self._shin_latched = True
         self.contacts_t_s = now_s
         return True
+
+    def take_contacts(self) -> tuple[bool, bool]:
+        """(foot, shin): each closed if it is closed now or any contacts frame accepted since the
+        last call said so (then the latch is empty again: a brush is heard once, and an opening
+        is heard the tick its frame arrives)."""
+        foot = self.foot or self._foot_latched
+        shin = self.shin or self._shin_latched
+        self._foot_latched = False
+        self._shin_latched = False
+        return foot, shin
 
     def on_heartbeat(self, values: tuple, now_s: float) -> bool:
         error, state, _fw, _uptime = values

@@ -46,9 +46,9 @@ class GaitConfig:
     stance_press_m: float = setting(0.005, "m", 0.0, 0.05, "stance target below the ground")
     muscle_tau_s: float = setting(0.015, "s", 0.0, 1.0, "muscle low-pass time constant")
     ramp_s: float = setting(1.0, "s", 0.0, 10.0, "move to the start pose in this long")
-    tuck_from_amplitude: float = setting(1.9, "x step height", 1.0, 5.0,
+    tuck_from_amplitude: float = setting(3.0, "x step height", 1.0, 5.0,
                                          "lift amplitude above which the swing starts to tuck (the hardwired lift)")
-    tuck_full_amplitude: float = setting(2.8, "x step height", 1.0, 5.0,
+    tuck_full_amplitude: float = setting(3.44, "x step height", 1.0, 5.0,
                                          "lift amplitude from which the swing is fully tucked")
     tuck_rise_phase: float = setting(0.2, "(fraction of the swing)", 0.05, 0.5, "tucked swing: foot up by then")
     tuck_descend_phase: float = setting(0.72, "(fraction of the swing)", 0.3, 0.95,
@@ -107,10 +107,12 @@ class FootTrajectory:
             u = tuck_fraction(self.gait, amplitude)
             x_t, z_t = self.tucked(s, out.flexor_drive)
             x, z = x + u * (x_t - x), z + u * (z_t - z)
-            # never above the circle on which the knee is bent to tuck_knee_rad (below the hip)
-            r = self.tuck_radius_m
-            if x * x < r * r:
-                z = min(z, -math.sqrt(r * r - x * x))
+        # never above the circle on which the knee is bent to tuck_knee_rad (below the hip): the
+        # knee could not follow. At any lift, so the path is continuous where the tuck starts; the
+        # hardwired lift's half-sine (1.9 x 0.08 m) stays below it, float for float.
+        r = self.tuck_radius_m
+        if x * x < r * r:
+            z = min(z, -math.sqrt(r * r - x * x))
         return x, z
 
     def tucked(self, s: float, flexor_drive: float) -> tuple[float, float]:

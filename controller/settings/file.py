@@ -534,6 +534,11 @@ def _cross_checks(t: Tables, bad: set[str], problems: list[str]) -> None:
         problems.append(f"{bmax} = {_show(v(bmax))} s must be at least {bmin} = {_show(v(bmin))} s")
     elif ok(b, bmin, bmax) and not v(bmin) <= v(b) <= v(bmax):
         problems.append(f"{b} = {_show(v(b))}: must be in [{bmin}, {bmax}] = [{_show(v(bmin))}, {_show(v(bmax))}] s")
+    for first, then, what in (("gait.tuck_from_amplitude", "gait.tuck_full_amplitude", "above"),
+                              ("gait.tuck_forward_phase", "gait.tuck_land_phase", "after"),
+                              ("gait.tuck_rise_phase", "gait.tuck_descend_phase", "after")):
+        if ok(first, then) and not v(first) < v(then):  # GaitConfig's own checks, named here
+            problems.append(f"{then} = {_show(v(then))} must be {what} {first} = {_show(v(first))}")
     vmin, vmax = "health.min_bus_voltage_v", "health.max_bus_voltage_v"
     if ok(vmin, vmax) and not v(vmin) < v(vmax):  # HealthConfig's own check, named here
         problems.append(f"{vmin} = {_show(v(vmin))} V must be below {vmax} = {_show(v(vmax))} V")

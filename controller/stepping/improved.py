@@ -18,22 +18,36 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    ``3 spread_cells``): a reflex trains the neighbourhood of each decision, which the next trials
    meet at slightly different distances. The memory, and so the burst, stays one-hot: only the
    credit is spread.
-3. **The too-close rule.** A reflex after a gate that held no cell, when the gate before it did
-   (the obstacle was already nearer than the encoder reaches: the foot came down at its foot,
-   every stride too long), is learnt as "placement" whatever its phase says: on this rig such a
-   landing's phase often says "extension", and lengthening makes it worse.
-4. **The other branch of a saturated gate** (``flip_at``). A reflex asking more of what the
-   gate's own weight already gives at ``flip_at`` of its bound (an extension while the weight
-   asks the longest swing) asks the opposite: that swing could not be longer, so the next
+3. **The gate that put the foot there** (``landing_gate``, off by default). Rules 4 and 5 judge
+   a reflex by a gate: the last one; with ``landing_gate``, the one whose swing put the foot
+   where it touched (in stance the gate before the last: the foot is where the last swing
+   landed it, and the stance's own gate has driven nothing yet). A foot landing on top of the
+   block fires its reflex at or just after touchdown, which is also the next step onset: judged
+   by that new, empty gate, tuning seed 76 learnt every such landing as "too close" (rule 4),
+   shortened its strides into the block trial after trial and collapsed from no mistake in
+   trials 3-36 to 0.47 over 150. ``landing_gate`` ends that collapse, but on the tuning seeds
+   it made single late mistakes commoner (docs/improved.md), so it is off.
+4. **The too-close rule.** A reflex whose gate (rule 3) held no cell, when the gate before it
+   did (the obstacle was already nearer than the encoder reaches: the foot came down at its
+   foot, every stride too long), is learnt as "placement" whatever its phase says: on this rig
+   such a landing's phase often says "extension", and lengthening makes it worse.
+5. **The other branch of a saturated gate** (``flip_at``). A reflex asking more of what its
+   gate's own weight (rule 3) already gives at ``flip_at`` of its bound (an extension while the
+   weight asks the longest swing) asks the opposite: that swing could not be longer, so the next
    approach takes an extra, shorter step.
-5. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
+6. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
    the step height whatever the obstacle. Here each context has its own amplitude, starting at
    the hardwired one; a contact reflex in the rising part of the swing (the shin or the foot
    struck something in the air before ``lift_phase``) means "lift higher": that context's
    amplitude rises by ``lift_step``, up to ``lift_max``, which the method's builder computes from
    the leg's joint and torque limits (:func:`controller.motion.reach.max_lift_amplitude`: the
    highest the foot can be held at all). The amplitude applies, as the hardwired reflex does, to
-   the step cycle whose gate sees the obstacle within ``lift_range_m``.
+   the step cycle whose gate sees the obstacle within ``lift_range_m``. Above a lift the gait
+   tucks its swing (:mod:`controller.motion.gait`: the foot up early, held back, forward and down
+   late), and a tucked swing takes longer: that cycle's burst is lengthened by the tuck fraction
+   of ``tucked_extra_s`` (the builder gives the CPG's longest burst less the base one). This is
+   the motor program of a high step, as the oracle's is (the oracle plans its crossing with the
+   longest burst for a tucked swing); where to take off the learner still learns by its weights.
 
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
@@ -44,6 +58,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -69,6 +84,7 @@ class ImprovedConfig:
     weight_limit_s: float = setting(0.5, "s", 0.001, 2.0, "bound on each weight's magnitude")
     flip_at: float = setting(0.95, "(fraction of the bound)", 0.0, 2.0,
                              "a reflex asking more of weights this near their bound asks the opposite (above 1: never)")
+    landing_gate: bool = setting(False, doc="judge a stance reflex by the gate before the last (rule 3; off: the last)")
     lift_amplitude: float = setting(1.9, "x step height", 1.0, 5.0, "every context's lift before any learning")
     lift_step: float = setting(0.3, "x step height", 0.0, 2.0, "lift added by a contact on the way up")
     lift_max: float = setting(3.4, "x step height", 1.0, 5.0, "highest lift (the builder: from the leg's limits)")
@@ -88,17 +104,26 @@ class ImprovedPremotor:
     reflexes (the :class:`controller.stepping.premotor.LiftingPremotor` protocol).
 
     ``n_contexts``: height contexts (:attr:`controller.stepping.height.HeightEstimatorConfig.n_contexts`);
-    ``n_cells``: the range encoder's cells; ``base_burst_s``: the burst with nothing gated [s].
+    ``n_cells``: the range encoder's cells; ``base_burst_s``: the burst with nothing gated [s];
+    ``tuck``: the gait's tuck fraction (0..1) of a lift amplitude
+    (:func:`controller.motion.gait.tuck_fraction`), default None: the swing never tucks;
+    ``tucked_extra_s``: how much longer a fully tucked swing's burst is [s], default 0.
     Attributes read by experiments: ``weights`` (n_contexts x n_cells) [s], ``lifts`` (one
     amplitude per context), ``lift_raises`` (how many reflexes raised a lift).
     """
 
     def __init__(self, n_contexts: int, n_cells: int, base_burst_s: float,
-                 config: ImprovedConfig = ImprovedConfig()) -> None:
+                 config: ImprovedConfig = ImprovedConfig(), tuck: Callable[[float], float] | None = None,
+                 tucked_extra_s: float = 0.0) -> None:
         if not (isinstance(n_contexts, int) and n_contexts >= 1 and isinstance(n_cells, int) and n_cells >= 1):
             raise ValueError(f"n_contexts and n_cells must be positive integers, got {n_contexts!r}, {n_cells!r}")
+        if not (math.isfinite(tucked_extra_s) and tucked_extra_s >= 0.0):
+            raise ValueError(f"tucked_extra_s must be a finite burst length >= 0 s, got {tucked_extra_s!r}")
         self.config = config
         self.base_burst_s = base_burst_s
+        self._tuck = tuck
+        self._tucked_extra_s = tucked_extra_s
+        self._extra_s = 0.0  # this step cycle's lengthening for a tucked swing
         self.n_contexts, self.n_cells = n_contexts, n_cells
         self.weights = np.zeros((n_contexts, n_cells))
         self.trained = np.zeros((n_contexts, n_cells))  # the trace each synapse was trained with so far
@@ -107,7 +132,7 @@ class ImprovedPremotor:
         self.flips = 0
         self.reflexes = 0  # stride reflexes learnt from
         self.too_close = 0  # reflexes learnt as placement because the crossing's gate saw nothing
-        self._gate_before_had_cell = False  # did the gate before the last one hold a cell?
+        self._gates: list[tuple[int | None, int | None]] = []  # the last three gates' (cell, row)
         self.memory = GatedMemory(config.stm_tau_s)
         self.traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)
         self.own_traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)  # gated cells only
@@ -128,9 +153,9 @@ class ImprovedPremotor:
     # -- the Premotor protocol -----------------------------------------------------------------
     def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
         row = self._row(context)
-        self._gate_before_had_cell = self.memory.cell is not None
         self.memory.gate(cell, now_s)
         self.context = row if cell is not None else None
+        self._gates = self._gates[-2:] + [(cell, self.context)]
         if cell is None:
             return
         base = row * self.n_cells
@@ -157,22 +182,30 @@ class ImprovedPremotor:
 
     def burst_s(self, now_s: float) -> float:
         if self.memory.cell is None:
-            return self.base_burst_s
-        return self.base_burst_s + self.modulation_s(now_s)
+            return self.base_burst_s + self._extra_s
+        return self.base_burst_s + self._extra_s + self.modulation_s(now_s)
 
     def on_reflex(self, kind: str, now_s: float) -> None:
-        """The stride part of a reflex (extension: longer strides, placement: shorter)."""
+        """The stride part of a reflex (extension: longer strides, placement: shorter), judged by
+        the last gate."""
+        self._learn(kind, now_s, self._gate(1))
+
+    def _gate(self, back: int) -> tuple[int | None, int | None]:
+        """(cell, row) of the gate ``back`` gates ago (1: the last); (None, None) before it."""
+        return self._gates[-back] if len(self._gates) >= back else (None, None)
+
+    def _learn(self, kind: str, now_s: float, gate: tuple[int | None, int | None]) -> None:
         if kind not in ("extension", "placement"):
             raise ValueError(f"unknown reflex kind {kind!r}")
         c = self.config
         if not c.learning or c.learning_rate_s == 0.0:
             return
         traces = self.traces.at(now_s).reshape(self.weights.shape)
-        cell = self.memory.cell
-        if c.flip_at <= 1.0 and cell is not None and self.context is not None:
+        cell, row = gate
+        if c.flip_at <= 1.0 and cell is not None and row is not None:
             # the swing this gate drove asked all the memory could and still fell short (or long):
             # lengthening (shortening) cannot help; the other branch of the stride map can
-            held = float(self.weights[self.context, cell])
+            held = float(self.weights[row, cell])
             if kind == "extension" and held >= c.flip_at * c.weight_limit_s:
                 kind = "placement"
                 self.flips += 1
@@ -190,22 +223,29 @@ class ImprovedPremotor:
 
     # -- the lift --------------------------------------------------------------------------------
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
+        self._extra_s = 0.0
         if gated_range_m is None or not gated_range_m < self.config.lift_range_m:
             self._lift_row = None
             return 1.0
         self._lift_row = self._row(context)
-        return float(self.lifts[self._lift_row])
+        amplitude = float(self.lifts[self._lift_row])
+        if self._tuck is not None:
+            self._extra_s = self._tuck(amplitude) * self._tucked_extra_s
+        return amplitude
 
     def on_contact_reflex(self, reflex: Reflex) -> None:
-        """A reflex in full: the stride learns from its kind, except when the crossing's own gate
-        held no cell although the gate before it did (the obstacle was already nearer than the
-        encoder reaches: the foot came down at its foot or against it, and every stride was too
-        long; the phase may say "extension", lengthening would make it worse): then it learns
-        "placement". A contact on the way up (in the swing before ``lift_phase``, of a step cycle
-        that lifted) also raises that context's lift."""
+        """A reflex in full, judged by the gate whose swing put the foot where it touched (in
+        stance the gate before the last: rule 3). The stride learns from its kind, except when
+        that gate held no cell although the gate before it did (the obstacle was already nearer
+        than the encoder reaches: the foot came down at its foot or against it, and every stride
+        was too long; the phase may say "extension", lengthening would make it worse): then it
+        learns "placement". A contact on the way up (in the swing before ``lift_phase``, of a
+        step cycle that lifted) also raises that context's lift."""
         c = self.config
         kind = reflex.kind
-        if self.memory.cell is None and self._gate_before_had_cell:
+        back = 2 if c.landing_gate and not reflex.swing else 1
+        gate = self._gate(back)
+        if gate[0] is None and self._gate(back + 1)[0] is not None:
             kind = "placement"
             self.too_close += 1
         if (c.learning and reflex.swing and reflex.phase < c.lift_phase and reflex.cause in ("shin", "foot_in_air")
@@ -215,4 +255,4 @@ class ImprovedPremotor:
             if raised > self.lifts[row]:
                 self.lifts[row] = raised
                 self.lift_raises += 1
-        self.on_reflex(kind, reflex.t_s)
+        self._learn(kind, reflex.t_s, gate)

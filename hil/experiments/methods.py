@@ -69,12 +69,26 @@ def lift_max(controller: ControllerConfig) -> float:
                               gait=controller.gait)
 
 
-def _improved(controller: ControllerConfig, learning: bool, seed: int, truth: Truth, height: Truth):
+def build_improved(controller: ControllerConfig, learning: bool = True, **settings):
+    """The improved learner for this controller: its lift settings from the controller's reflexes,
+    its highest lift from the leg (:func:`lift_max`), the gait's tuck and the CPG's longest burst
+    for a tucked swing; ``settings``: other :class:`controller.stepping.improved.ImprovedConfig`
+    settings (tuning)."""
+    from functools import partial
+
+    from controller.motion.gait import tuck_fraction
     from controller.stepping.improved import ImprovedConfig, ImprovedPremotor
 
-    config = ImprovedConfig(learning=learning, lift_amplitude=controller.reflexes.lift_amplitude,
-                            lift_range_m=controller.reflexes.lift_range_m, lift_max=lift_max(controller))
-    return ImprovedPremotor(controller.height.n_contexts, controller.encoder.n_cells, controller.cpg.burst_s, config)
+    config = ImprovedConfig(**{"learning": learning, "lift_amplitude": controller.reflexes.lift_amplitude,
+                               "lift_range_m": controller.reflexes.lift_range_m, "lift_max": lift_max(controller),
+                               **settings})
+    cpg = controller.cpg
+    return ImprovedPremotor(controller.height.n_contexts, controller.encoder.n_cells, cpg.burst_s, config,
+                            tuck=partial(tuck_fraction, controller.gait), tucked_extra_s=cpg.burst_max_s - cpg.burst_s)
+
+
+def _improved(controller: ControllerConfig, learning: bool, seed: int, truth: Truth, height: Truth):
+    return build_improved(controller, learning)
 
 
 @dataclass(frozen=True)

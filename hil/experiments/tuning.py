@@ -9,7 +9,8 @@ improved learner's defaults were chosen, and it refuses any seed outside 0-99::
 runs 150 trials (``--trials``) of the ``improved`` method for each seed with those
 :class:`controller.stepping.improved.ImprovedConfig` settings (the rest its defaults), on
 ``--workers`` processes, and prints one line per seed (trials to criterion, success over all
-trials, mistakes after trial 50 and after trial 100, the failed trials) and a summary line.
+trials, mistakes after trial 50 and after trial 100, the failed trials, the contacts no reflex
+heard) and a summary line.
 ``--heights`` mixes heights per trial (the last 50 trials' success per height is printed).
 
 May import what :mod:`hil.experiments` may.
@@ -56,18 +57,13 @@ def parse_settings(items: list[str]) -> dict[str, Any]:
 
 def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[float, ...]) -> dict[str, Any]:
     """One tuning run: the ``improved`` method with ``settings``."""
-    from controller.stepping.improved import ImprovedConfig, ImprovedPremotor
     from hil.analysis.stats import trials_to_criterion
     from hil.experiments.learn import LearnConfig, LearningRun
-    from hil.experiments.methods import lift_max
+    from hil.experiments.methods import build_improved
 
     config = LearnConfig(seed=seed, trials=trials, method="improved", obstacle_height_m=heights[0],
                          obstacle_heights_m=heights if len(heights) > 1 else ())
-    ctl = config.controller
-    improved = ImprovedConfig(**{"lift_amplitude": ctl.reflexes.lift_amplitude,
-                                 "lift_range_m": ctl.reflexes.lift_range_m, "lift_max": lift_max(ctl), **settings})
-    premotor = ImprovedPremotor(ctl.height.n_contexts, ctl.encoder.n_cells, ctl.cpg.burst_s, improved)
-    run = LearningRun(config, premotor=premotor)
+    run = LearningRun(config, premotor=build_improved(config.controller, **settings))
     try:
         records = run.run()
     finally:
@@ -107,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     late: dict[float, list[bool]] = defaultdict(list)
     for r in results:
         print(r["seed"], r["trials_to_criterion"], f"{r['success']:.3f}", r["mistakes_after_50"],
-              r["mistakes_after_100"], r["failed"][:15])
+              r["mistakes_after_100"], r["failed"][:15], f"misses {r['contact_misses']}")
         for h, ok in r["late_by_height"]:
             late[h].append(ok)
     ttc = [r["trials_to_criterion"] if r["trials_to_criterion"] is not None else 10**6 for r in results]

@@ -414,3 +414,19 @@ def test_a_disarm_before_the_read_back_drops_the_expectation():
     assert leg.loop.request_disarm(leg.t) is None
     leg.tick(400)
     assert leg.loop.phase is Phase.INACTIVE and not leg.loop.supervisor.pending_watchdog
+
+
+def test_a_shin_brush_between_two_ticks_fires_a_reflex():
+    """The board sends a contacts frame at each change: a shin that closes and opens again within
+    one control period arrives as two frames drained in the same tick. The loop reads the
+    switches' latch, so the reflex fires (it read only the last frame, and missed the brush)."""
+    contacts = C.codec("SB_Contacts")
+    frame_id = arbitration_id(SENSOR_BOARD_NODE_ID, contacts.cmd_id)
+    leg = Leg()
+    arm_and_run(leg, 800)
+    assert leg.loop.phase is Phase.WALK and not leg.loop.stats.reflexes
+    leg.bus.push(data_frame(frame_id, contacts.pack(0, 1, 0)), data_frame(frame_id, contacts.pack(0, 0, 1)))
+    leg.tick()
+    assert [r.cause for r in leg.loop.stats.reflexes] == ["shin"]
+    leg.tick(5)
+    assert len(leg.loop.stats.reflexes) == 1  # heard once

@@ -213,6 +213,7 @@ _PARTNERS = {
     ("encoder.max_range_m", 0.01): {"encoder.cell_width_m": 0.01},
     ("encoder.max_range_m", 10.0): {"range_filter.max_range_m": 10.0},
     ("range_filter.max_range_m", 0.01): {"encoder.max_range_m": 0.01, "encoder.cell_width_m": 0.01},
+    ("gait.tuck_land_phase", 0.1): {"gait.tuck_forward_phase": 0.0},
 }
 
 _UNREACHABLE = {
@@ -227,6 +228,9 @@ _UNREACHABLE = {
     # min_bus_voltage_v must be below max_bus_voltage_v (HealthConfig), both in [0, 100] V
     ("health.min_bus_voltage_v", 100.0): "health.max_bus_voltage_v",
     ("health.max_bus_voltage_v", 0.0): "health.min_bus_voltage_v",
+    # the tucked swing's full amplitude must be above the one it starts from, both in [1, 5]
+    ("gait.tuck_from_amplitude", 5.0): "must be above gait.tuck_from_amplitude",
+    ("gait.tuck_full_amplitude", 1.0): "must be above gait.tuck_from_amplitude",
 }
 
 
