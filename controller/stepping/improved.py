@@ -18,15 +18,17 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    ``3 spread_cells``): a reflex trains the neighbourhood of each decision, which the next trials
    meet at slightly different distances. The memory, and so the burst, stays one-hot: only the
    credit is spread.
-3. **The gate that put the foot there** (``landing_gate``, off by default). Rules 4 and 5 judge
-   a reflex by a gate: the last one; with ``landing_gate``, the one whose swing put the foot
+3. **The gate that put the foot there** (``landing_on_top``, on; ``landing_gate``, off). Rules
+   4 and 5 judge a reflex by a gate: the last one; with this rule, the one whose swing put the foot
    where it touched (in stance the gate before the last: the foot is where the last swing
    landed it, and the stance's own gate has driven nothing yet). A foot landing on top of the
    block fires its reflex at or just after touchdown, which is also the next step onset: judged
    by that new, empty gate, tuning seed 76 learnt every such landing as "too close" (rule 4),
    shortened its strides into the block trial after trial and collapsed from no mistake in
    trials 3-36 to 0.47 over 150. ``landing_gate`` ends that collapse, but on the tuning seeds
-   it made single late mistakes commoner (docs/improved.md), so it is off.
+   it made single late mistakes commoner (docs/improved.md), so it is off. ``landing_on_top``
+   (on) applies the rule only to a foot landing on top of the block, the collapse's own case: it
+   ends the collapses of seeds 70 and 76 without that cost (seeds 44-99).
 4. **The too-close rule.** A reflex whose gate (rule 3) held no cell, when the gate before it
    did (the obstacle was already nearer than the encoder reaches: the foot came down at its
    foot, every stride too long), is learnt as "placement" whatever its phase says: on this rig
@@ -85,6 +87,7 @@ class ImprovedConfig:
     flip_at: float = setting(0.95, "(fraction of the bound)", 0.0, 2.0,
                              "a reflex asking more of weights this near their bound asks the opposite (above 1: never)")
     landing_gate: bool = setting(False, doc="judge a stance reflex by the gate before the last (rule 3; off: the last)")
+    landing_on_top: bool = setting(True, doc="rule 3 for a foot landing on top of the block only (foot_on_top in stance)")
     lift_amplitude: float = setting(1.9, "x step height", 1.0, 5.0, "every context's lift before any learning")
     lift_step: float = setting(0.3, "x step height", 0.0, 2.0, "lift added by a contact on the way up")
     lift_max: float = setting(3.4, "x step height", 1.0, 5.0, "highest lift (the builder: from the leg's limits)")
@@ -243,7 +246,8 @@ class ImprovedPremotor:
         step cycle that lifted) also raises that context's lift."""
         c = self.config
         kind = reflex.kind
-        back = 2 if c.landing_gate and not reflex.swing else 1
+        landing = not reflex.swing and (c.landing_gate or (c.landing_on_top and reflex.cause == "foot_on_top"))
+        back = 2 if landing else 1
         gate = self._gate(back)
         if gate[0] is None and self._gate(back + 1)[0] is not None:
             kind = "placement"

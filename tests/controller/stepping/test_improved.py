@@ -143,7 +143,8 @@ def test_a_stance_reflex_is_judged_by_the_gate_whose_swing_landed_the_foot():
     """A foot landing on top of the block fires at touchdown, which is also the next step onset:
     the gate just taken (empty: the block is under the foot) drove nothing yet. The gate before
     it, the crossing's, held a cell: not "too close", and the phase's "extension" stands (tuning
-    seed 76 collapsed when such landings were learnt as placement). A setting, off by default."""
+    seed 76 collapsed when such landings were learnt as placement). For every stance reflex
+    (``landing_gate``, off) or for a foot on top only (``landing_on_top``, the default)."""
     p = premotor(spread_cells=0.0, landing_gate=True)
     p.on_step_onset(0.0, 9, context=0)
     p.on_step_onset(0.7, 3, context=0)  # the crossing's gate
@@ -156,7 +157,7 @@ def test_a_stance_reflex_is_judged_by_the_gate_whose_swing_landed_the_foot():
     q.on_step_onset(1.4, None, context=None)
     q.on_contact_reflex(reflex("extension", 1.45, cause="foot_on_top", swing=False, phase=0.05))
     assert q.too_close == 1 and q.weights[0, 3] < 0.0
-    off = premotor(spread_cells=0.0)  # the default: judged by the last gate, empty: "too close"
+    off = premotor(spread_cells=0.0, landing_on_top=False)  # both off: the last gate, empty: "too close"
     off.on_step_onset(0.0, 9, context=0)
     off.on_step_onset(0.7, 3, context=0)
     off.on_step_onset(1.4, None, context=None)
@@ -188,3 +189,13 @@ def test_a_tucked_lift_lengthens_that_cycles_burst_by_the_tuck():
     assert p.lift_amplitude(None, None) == 1.0 and p.burst_s(2.0) == pytest.approx(BASE)
     with pytest.raises(ValueError, match="tucked_extra_s"):
         ImprovedPremotor(4, 28, BASE, tucked_extra_s=-0.1)
+
+
+def test_landing_on_top_judges_only_a_foot_on_the_block_by_the_gate_before():
+    for cause, too_close in (("foot_on_top", 0), ("shin", 1)):
+        p = premotor(spread_cells=0.0, landing_on_top=True)
+        p.on_step_onset(0.0, 9, context=0)
+        p.on_step_onset(0.7, 3, context=0)
+        p.on_step_onset(1.4, None, context=None)
+        p.on_contact_reflex(reflex("extension", 1.45, cause=cause, swing=False, phase=0.05))
+        assert p.too_close == too_close, cause
