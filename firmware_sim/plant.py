@@ -46,6 +46,13 @@ pybullet.c reads them (one number a joint) and sends only the forces (its ``CONT
 case)."""
 
 
+def touching(point: tuple) -> bool:
+    """Whether a PyBullet contact point is a touch: its bodies meet (contact distance, field 8, at
+    most 0) or press (normal force, field 9, above 0). PyBullet also keeps points up to its contact
+    margin apart with no force (:meth:`RigPlant.obstacle_contact`): near misses."""
+    return point[8] <= 0.0 or point[9] > 0.0
+
+
 @interpreted  # a configuration: plain Python even when compiled (protocol.compiled)
 @dataclass(frozen=True)
 class RigConfig:
@@ -327,13 +334,13 @@ class RigPlant:
         if self._points_fresh and self._contacts_t_s == self.t_s:
             bodies = [body for body, _ in obstacles]
             for pt in self._contact_points:
-                if pt[2] in bodies and (pt[8] <= 0.0 or pt[9] > 0.0):
+                if pt[2] in bodies and touching(pt):
                     return True
             return False
         for body, _ in obstacles:
             # kwlist: see contacts
             for pt in pybullet.getContactPoints(self.robot, body, -2, -2, self._cid):
-                if pt[8] <= 0.0 or pt[9] > 0.0:
+                if touching(pt):
                     return True
         return False
 

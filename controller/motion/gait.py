@@ -12,8 +12,8 @@ forward all the while, so the shin meets a tall block's near edge before the foo
 foot passes over the block where it is not yet (or no longer) at its peak: the oracle, lifting 3.0
 x the step height, cleared 0.16 m but never 0.18 m. The leg's own limit (0.223 m for a 0.10 m deep
 block, :mod:`controller.motion.reach`) is set by a tucked pose: the knee fully flexed, the foot
-just behind the hip. So above the hardwired lift's amplitude (``tuck_from_amplitude``, 1.9) the
-swing blends, continuously in the amplitude, into a *tucked* path (:meth:`FootTrajectory.tucked`):
+just behind the hip. So above ``tuck_from_amplitude`` (3.0: above the hardwired lift's 1.9 and
+the lifts a learner reaches for 0.16 m, which the half-sine clears) the swing blends, continuously in the amplitude, into a *tucked* path (:meth:`FootTrajectory.tucked`):
 the foot rises early (a quarter-sine up to ``tuck_rise_phase``, then a flat top), drawing back by
 ``tuck_back_m`` while it rises (the shank clears the near edge); it moves forward only from
 ``tuck_forward_phase`` (on a cosine, reaching the front at ``tuck_land_phase``) and descends only
@@ -47,7 +47,7 @@ class GaitConfig:
     muscle_tau_s: float = setting(0.015, "s", 0.0, 1.0, "muscle low-pass time constant")
     ramp_s: float = setting(1.0, "s", 0.0, 10.0, "move to the start pose in this long")
     tuck_from_amplitude: float = setting(3.0, "x step height", 1.0, 5.0,
-                                         "lift amplitude above which the swing starts to tuck (the hardwired lift)")
+                                         "lift amplitude above which the swing starts to tuck")
     tuck_full_amplitude: float = setting(3.44, "x step height", 1.0, 5.0,
                                          "lift amplitude from which the swing is fully tucked")
     tuck_rise_phase: float = setting(0.2, "(fraction of the swing)", 0.05, 0.5, "tucked swing: foot up by then")

@@ -59,6 +59,7 @@ to be tried, and off by default (0): with the spread it cost late mistakes on th
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -135,7 +136,7 @@ class ImprovedPremotor:
         self.flips = 0
         self.reflexes = 0  # stride reflexes learnt from
         self.too_close = 0  # reflexes learnt as placement because the crossing's gate saw nothing
-        self._gates: list[tuple[int | None, int | None]] = []  # the last three gates' (cell, row)
+        self._gates: deque[tuple[int | None, int | None]] = deque(maxlen=3)  # the last three gates' (cell, row)
         self.memory = GatedMemory(config.stm_tau_s)
         self.traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)
         self.own_traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)  # gated cells only
@@ -158,7 +159,7 @@ class ImprovedPremotor:
         row = self._row(context)
         self.memory.gate(cell, now_s)
         self.context = row if cell is not None else None
-        self._gates = self._gates[-2:] + [(cell, self.context)]
+        self._gates.append((cell, self.context))
         if cell is None:
             return
         base = row * self.n_cells

@@ -51,7 +51,7 @@ from typing import Any, Iterable
 
 import pybullet
 
-from firmware_sim.plant import _UNUSED_IN_TORQUE_CONTROL, SENSOR_MAX_RANGE_M, Obstacle, RigConfig, RigPlant
+from firmware_sim.plant import _UNUSED_IN_TORQUE_CONTROL, SENSOR_MAX_RANGE_M, Obstacle, RigConfig, RigPlant, touching
 from hil.lockstep.harness import Lockstep, LockstepConfig
 
 log = logging.getLogger(__name__)
@@ -342,7 +342,7 @@ def _replay_into(plant: RigPlant, rec: Recording, queries: bool) -> dict[str, An
                 link_state(robot, foot_link, 0, 0, cid)
             elif name == "obstacle_contact":
                 for body in bodies:
-                    if any(pt[8] <= 0.0 or pt[9] > 0.0 for pt in contact_points(robot, body, -2, -2, cid)):
+                    if any(touching(pt) for pt in contact_points(robot, body, -2, -2, cid)):
                         break
             elif name == "add_obstacle":
                 bodies.append(plant.add_obstacle(op[1]))

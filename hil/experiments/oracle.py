@@ -15,13 +15,14 @@ where the hardwired reflex would lift (the gated range below ``reflexes.lift_ran
 and below that is the hardwired lift itself, so the oracle's records there are those of before. So
 it stays an upper bound for the learners, which must learn their lift.
 
-A lift above the hardwired one tucks the gait's swing (``controller.motion.gait``: the foot up
+A lift above ``gait.tuck_from_amplitude`` (3.0) tucks the gait's swing (``controller.motion.gait``: the foot up
 early, held back, forward and down late), by the fraction :func:`controller.motion.gait.tuck_fraction`
 of that lift. The tucked swing needs the block farther ahead when it starts (the shin, near the
 near edge when stance ends, has to be clear of it before the foot is up) and longer to let the
 block pass under the held foot. So, by the same fraction, the oracle plans the take-off at
 ``tucked_takeoff_m`` instead of ``takeoff_m`` and gives the crossing swing the CPG's longest burst
-(``cpg.burst_max_s``) instead of the base one. At 0.08 m and below the fraction is 0: the plan of before.
+(``cpg.burst_max_s``) instead of the base one. Up to 0.16 m (a lift of at most 2.9) the fraction is 0: the
+plan of before.
 
 It is a Premotor (``controller.stepping.premotor``) like the learner, so it drives the same CPG through the
 same loop, bus and plant; it never learns.
@@ -98,9 +99,12 @@ class OraclePremotor:
         h = self.height() if self.height is not None else None
         if h is None or self._lift_max is None:
             return 0.0
-        lift = min(self._lift_max, max(self._reflexes.lift_amplitude,
-                                       (h + self.config.lift_margin_m) / self._step_height_m))
-        return tuck_fraction(self._gait, lift)
+        return tuck_fraction(self._gait, self._lift_for(h))
+
+    def _lift_for(self, h: float) -> float:
+        """The lift for an obstacle ``h`` high [m]: its top plus the margin, over the step height,
+        at least the hardwired reflex's and at most the leg's highest."""
+        return min(self._lift_max, max(self._reflexes.lift_amplitude, (h + self.config.lift_margin_m) / self._step_height_m))
 
     def plan(self, distance_m: float | None) -> float:
         """Burst [s] for the coming swing, given the foot's distance to the near edge."""
@@ -135,7 +139,7 @@ class OraclePremotor:
         h = self.height() if self.height is not None else None
         if hardwired == 1.0 or h is None or self._lift_max is None:
             return hardwired
-        return min(self._lift_max, max(hardwired, (h + self.config.lift_margin_m) / self._step_height_m))
+        return self._lift_for(h)  # (hardwired is the reflex's lift_amplitude here)
 
     def on_reflex(self, kind: str, now_s: float) -> None:
         pass
