@@ -50,7 +50,10 @@ def parse_settings(items: list[str]) -> dict[str, Any]:
         name, sep, value = item.partition("=")
         if not sep:
             raise ValueError(f"--set {item!r}: give name=value")
-        settings[name.strip()] = json.loads(value)
+        try:
+            settings[name.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            raise ValueError(f"--set {item!r}: the value must be a number, true or false") from None
     ImprovedConfig(**settings)  # unknown names (TypeError) and out-of-range values (ValueError)
     return settings
 

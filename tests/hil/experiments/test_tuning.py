@@ -22,6 +22,8 @@ def test_settings_are_checked_by_the_learners_configuration():
     with pytest.raises(ValueError, match="spread_cells"):
         tuning.parse_settings(["spread_cells=-1"])
     assert tuning.main(["--set", "spread_cells"]) == 2
+    with pytest.raises(ValueError, match="landing_on_top=maybe.*number, true or false"):
+        tuning.parse_settings(["landing_on_top=maybe"])  # not JSON: named, not a bare decoder message
 
 
 def test_one_tuning_run_goes_through_the_whole_stack():
