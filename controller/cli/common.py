@@ -280,6 +280,27 @@ def main(prog: str, description: str, verbs: Sequence[Verb], argv: Sequence[str]
     built and the verb's modules imported inside) -> 130; ``BrokenPipeError`` (stdout piped into a
     reader that stopped) -> 0, quietly; a missing extra -> 6; argparse's own errors -> 2 (it exits
     itself); anything else, an ``OSError`` about no path included -> 70 with the traceback."""
+    code = _main(prog, description, verbs, argv)
+    _forget_handled_interrupts()
+    return code
+
+
+def _forget_handled_interrupts() -> None:
+    """Make a ``KeyboardInterrupt`` this process handled stay handled at exit.
+
+    CPython 3.11 notes "an unhandled KeyboardInterrupt" in a flag whenever code run from a
+    *string* ends in one (``run_eval_code_obj``), even code run inside a ``try`` that then handles
+    it, and at exit a process with the flag set kills itself with SIGINT (return code -2, no
+    traceback) instead of returning its exit code. ``dataclasses`` builds each frozen class's
+    ``__setattr__`` with ``exec`` of a string, so a SIGTERM that lands while a lazily imported
+    module defines one (``learn`` imports as it runs) turned a clean "stopped ... exit 130" into
+    a death by SIGINT, about one stop in twenty (seen with gdb watching the flag). Every such eval
+    clears the flag first, so evaluating a string that raises nothing clears it: done once, as
+    the command line returns its own exit code."""
+    exec("None")  # noqa: S102 - a constant string; its only effect is the flag's reset
+
+
+def _main(prog: str, description: str, verbs: Sequence[Verb], argv: Sequence[str] | None) -> int:
     from controller.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_MISSING, EXIT_OK, CliError
 
     single_threaded_blas()

@@ -232,3 +232,32 @@ def test_a_command_sets_one_blas_thread_unless_the_environment_chose(monkeypatch
     common.single_threaded_blas()
     assert os.environ[common.BLAS_THREADS_ENV] == "4"
 
+
+
+def test_an_interrupt_handled_inside_string_code_still_exits_130_not_by_sigint(tmp_path):
+    """CPython 3.11 flags a KeyboardInterrupt that ends any code run from a string (``exec`` of a
+    string, as ``dataclasses`` does for every frozen class) as unhandled, even when a ``try``
+    handles it, and then dies of SIGINT at exit (-2) instead of returning its code: a SIGTERM
+    during a lazy import in ``learn`` did so about one stop in twenty. ``main`` clears the flag."""
+    import subprocess
+    from pathlib import Path
+
+    script = tmp_path / "stop_at_once.py"  # run with -m, as the console script and ``python -m hil.cli`` run
+    script.write_text(
+        "import sys, types\n"
+        "verb = types.ModuleType('stopverb')\n"
+        "verb.add_arguments = lambda p: None\n"
+        "def run(args):\n"
+        "    try:\n"
+        "        exec('raise KeyboardInterrupt')  # what a signal inside a dataclass's exec does\n"
+        "    except KeyboardInterrupt:\n"
+        "        print('prog stop: stopped; run it again to resume', file=sys.stderr)\n"
+        "        return 130\n"
+        "verb.run = run\n"
+        "sys.modules['stopverb'] = verb\n"
+        "from controller.cli.common import Verb, main\n"
+        "sys.exit(main('prog', 'a test', [Verb('stop', 'stopverb', 'stop at once')], ['stop']))\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(common.__file__).parents[2]), str(tmp_path)])}
+    done = subprocess.run([sys.executable, "-m", "stop_at_once"], capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 130, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == "prog stop: stopped; run it again to resume"
