@@ -12,6 +12,10 @@ runs 150 trials (``--trials``) of the ``improved`` method for each seed with tho
 trials, mistakes after trial 50 and after trial 100, the failed trials, the contacts no reflex
 heard) and a summary line.
 ``--heights`` mixes heights per trial (the last 50 trials' success per height is printed).
+``--failures-after N`` also prints each failed trial from trial N on: its last four gates (cell,
+gated range, the weight each cell held as the trial began), its last three footfalls (relative to
+the obstacle's near face) and its first reflex (kind, cause, phase, in the swing or not): what
+docs/improved.md's account of the late mistakes was read from.
 
 May import what :mod:`hil.experiments` may.
 """
@@ -58,17 +62,28 @@ def parse_settings(items: list[str]) -> dict[str, Any]:
     return settings
 
 
-def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[float, ...]) -> dict[str, Any]:
-    """One tuning run: the ``improved`` method with ``settings``."""
+def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[float, ...],
+             failures_after: int | None = None) -> dict[str, Any]:
+    """One tuning run: the ``improved`` method with ``settings``; with ``failures_after``, the
+    failed trials from that index on as lines (see the module docstring)."""
     from hil.analysis.stats import trials_to_criterion
     from hil.experiments.learn import LearnConfig, LearningRun
     from hil.experiments.methods import build_improved
 
     config = LearnConfig(seed=seed, trials=trials, method="improved", obstacle_height_m=heights[0],
                          obstacle_heights_m=heights if len(heights) > 1 else ())
-    run = LearningRun(config, premotor=build_improved(config.controller, **settings))
+    premotor = build_improved(config.controller, **settings)
+    run = LearningRun(config, premotor=premotor)
+    failures: list[str] = []
     try:
-        records = run.run()
+        run.bring_up()
+        for i in range(trials):
+            held = premotor.weights.copy()
+            trial = run.trial(i)
+            run.trials.append(trial)
+            if failures_after is not None and i >= failures_after and not trial["success"]:
+                failures.append(describe_failure(seed, trial, held))
+        records = run.trials
     finally:
         run.close()
     success = [t["success"] for t in records]
@@ -77,10 +92,27 @@ def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[fl
             "mistakes_after_100": success[100:].count(False),
             "failed": [i for i, ok in enumerate(success) if not ok],
             "late_by_height": [(t["obstacle_height_m"], t["success"]) for t in records[-50:]],
-            "contact_misses": sum(t["contact_misses"] for t in records)}
+            "contact_misses": sum(t["contact_misses"] for t in records), "failures": failures}
 
 
-def _one(args: tuple[int, int, dict[str, Any], tuple[float, ...]]) -> dict[str, Any]:
+def describe_failure(seed: int, trial: dict[str, Any], weights: Any) -> str:
+    """One line for a failed trial: its last four gates (cell, gated range [m], the weight the
+    cell held as the trial began [s]), last three footfalls [m] and first reflex."""
+    def num(x: float | None) -> str:
+        return "-" if x is None else f"{x:.3f}"
+
+    gates = []
+    for cell, row, range_m in list(zip(trial["gated_cells"], trial["gated_contexts"], trial["gated_range_m"]))[-4:]:
+        held = None if cell is None or row is None else float(weights[row, cell])
+        gates.append(f"{'-' if cell is None else cell}@{num(range_m)}:{num(held)}")
+    first = trial["reflexes"][0] if trial["reflexes"] else None
+    reflex = "none" if first is None else (f"{first['kind']} {first['cause']} phase {first['phase']:.2f} "
+                                           f"{'swing' if first['swing'] else 'stance'}")
+    return (f"seed {seed} trial {trial['index']}: gates (cell@range:weight) {' '.join(gates)}; footfalls "
+            f"{' '.join(num(x) for x in trial['footfalls_m'][-3:])}; reflex {reflex}")
+
+
+def _one(args: tuple[int, int, dict[str, Any], tuple[float, ...], int | None]) -> dict[str, Any]:
     return run_seed(*args)
 
 
@@ -91,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="an ImprovedConfig setting")
     p.add_argument("--heights", default="0.08", help="obstacle heights [m], comma list (several: mixed per trial)")
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--failures-after", type=int, default=None, metavar="N",
+                   help="also print each failed trial from trial N on (its last gates, footfalls, reflex)")
     args = p.parse_args(argv)
     try:
         seeds = parse_seeds(args.seeds)
@@ -102,11 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     from multiprocessing import Pool
 
     with Pool(args.workers) as pool:
-        results = pool.map(_one, [(s, args.trials, settings, heights) for s in seeds])
+        results = pool.map(_one, [(s, args.trials, settings, heights, args.failures_after) for s in seeds])
     late: dict[float, list[bool]] = defaultdict(list)
     for r in results:
         print(r["seed"], r["trials_to_criterion"], f"{r['success']:.3f}", r["mistakes_after_50"],
               r["mistakes_after_100"], r["failed"][:15], f"misses {r['contact_misses']}")
+        for line in r["failures"]:
+            print("  " + line)
         for h, ok in r["late_by_height"]:
             late[h].append(ok)
     ttc = [r["trials_to_criterion"] if r["trials_to_criterion"] is not None else 10**6 for r in results]

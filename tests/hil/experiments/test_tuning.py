@@ -27,5 +27,21 @@ def test_settings_are_checked_by_the_learners_configuration():
 
 
 def test_one_tuning_run_goes_through_the_whole_stack():
-    r = tuning.run_seed(3, 2, {"spread_fade": 5.0}, (0.08,))
+    r = tuning.run_seed(3, 2, {"spread_fade": 5.0}, (0.08,), failures_after=0)
     assert r["seed"] == 3 and len(r["late_by_height"]) == 2 and 0.0 <= r["success"] <= 1.0
+    # one line per failed trial (trial 0 starts from zero weights), none without --failures-after
+    assert r["failed"] and len(r["failures"]) == len(r["failed"]) and all(line.startswith("seed 3 trial ") for line in r["failures"])
+    assert tuning.run_seed(3, 2, {}, (0.08,))["failures"] == []
+
+
+def test_a_failure_line_names_the_last_gates_with_the_weights_held_as_the_trial_began():
+    import numpy as np
+
+    weights = np.zeros((4, 28))
+    weights[1, 17], weights[1, 7] = 0.25, 0.5
+    trial = {"index": 54, "gated_cells": [None, 27, 17, 7, None], "gated_contexts": [None, 1, 1, 1, None],
+             "gated_range_m": [1.8, 1.458, 1.111, 0.298, None], "footfalls_m": [-1.5, -1.187, -0.769, -0.377],
+             "reflexes": [{"kind": "extension", "cause": "foot_on_top", "phase": 0.894, "swing": True, "t_s": 3.0}]}
+    assert tuning.describe_failure(46, trial, weights) == (
+        "seed 46 trial 54: gates (cell@range:weight) 27@1.458:0.000 17@1.111:0.250 7@0.298:0.500 -@-:-; "
+        "footfalls -1.187 -0.769 -0.377; reflex extension foot_on_top phase 0.89 swing")
