@@ -84,9 +84,12 @@ class ImprovedConfig:
                                  "reflexes after which every neighbour's credit has halved")
     spread_settle: float = setting(1.0, "(trace units)", 0.01, 1000.0,
                                    "own training after which a cell takes half its neighbours' credit")
+    spread_keeps_branch: bool = setting(False, doc="a cell whose weight has the other sign takes no neighbour's credit")
     weight_limit_s: float = setting(0.5, "s", 0.001, 2.0, "bound on each weight's magnitude")
     flip_at: float = setting(0.95, "(fraction of the bound)", 0.0, 2.0,
                              "a reflex asking more of weights this near their bound asks the opposite (above 1: never)")
+    flip_gain: float = setting(1.0, "x learning rate", 0.0, 10.0,
+                               "a flipped reflex's step, in units of the learning rate (rule 5)")
     landing_gate: bool = setting(False, doc="judge a stance reflex by the gate before the last (rule 3; off: the last)")
     landing_on_top: bool = setting(True, doc="rule 3 for a foot landing on top of the block only (foot_on_top in stance)")
     lift_amplitude: float = setting(1.9, "x step height", 1.0, 5.0, "every context's lift before any learning")
@@ -206,20 +209,24 @@ class ImprovedPremotor:
             return
         traces = self.traces.at(now_s).reshape(self.weights.shape)
         cell, row = gate
+        gain = 1.0
         if c.flip_at <= 1.0 and cell is not None and row is not None:
             # the swing this gate drove asked all the memory could and still fell short (or long):
             # lengthening (shortening) cannot help; the other branch of the stride map can
             held = float(self.weights[row, cell])
             if kind == "extension" and held >= c.flip_at * c.weight_limit_s:
-                kind = "placement"
+                kind, gain = "placement", c.flip_gain
                 self.flips += 1
             elif kind == "placement" and held <= -c.flip_at * c.weight_limit_s:
-                kind = "extension"
+                kind, gain = "extension", c.flip_gain
                 self.flips += 1
         rate = c.learning_rate_s if c.settle_reflexes == 0.0 else c.learning_rate_s / (
             1.0 + self.trained / c.settle_reflexes)
         sign = 1.0 if kind == "extension" else -1.0
-        self.weights += sign * rate * traces
+        if c.spread_keeps_branch:  # a cell on the other branch learns from its own gates only
+            own = self.own_traces.at(now_s).reshape(self.weights.shape)
+            traces = np.where(self.weights * sign < 0.0, np.minimum(own, traces), traces)
+        self.weights += (sign * gain) * rate * traces
         np.clip(self.weights, -c.weight_limit_s, c.weight_limit_s, out=self.weights)
         self.trained += traces
         self.reflexes += 1
