@@ -13,7 +13,8 @@ foot passes over the block where it is not yet (or no longer) at its peak: the o
 x the step height, cleared 0.16 m but never 0.18 m. The leg's own limit (0.223 m for a 0.10 m deep
 block, :mod:`controller.motion.reach`) is set by a tucked pose: the knee fully flexed, the foot
 just behind the hip. So above ``tuck_from_amplitude`` (3.0: above the hardwired lift's 1.9 and
-the lifts a learner reaches for 0.16 m, which the half-sine clears) the swing blends, continuously in the amplitude, into a *tucked* path (:meth:`FootTrajectory.tucked`):
+the lifts a learner reaches for 0.16 m, which the half-sine clears) the swing blends,
+continuously in the amplitude, into a *tucked* path (:meth:`FootTrajectory.tucked`):
 the foot rises early (a quarter-sine up to ``tuck_rise_phase``, then a flat top), drawing back by
 ``tuck_back_m`` while it rises (the shank clears the near edge); it moves forward only from
 ``tuck_forward_phase`` (on a cosine, reaching the front at ``tuck_land_phase``) and descends only

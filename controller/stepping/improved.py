@@ -51,6 +51,11 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    the motor program of a high step, as the oracle's is (the oracle plans its crossing with the
    longest burst for a tucked swing); where to take off the learner still learns by its weights.
 
+Two settings of round 4 are there to be tried, and off by default: ``flip_gain`` (a reflex
+flipped by rule 5 moves the weights by that many learning steps, so a saturated gate reaches the
+other branch at once) and ``spread_keeps_branch`` (a cell whose weight has the other sign than a
+reflex asks takes only its own gates' credit, not its neighbours'); docs/improved.md, "Round 4".
+
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
 to be tried, and off by default (0): with the spread it cost late mistakes on the tuning seeds.
@@ -84,7 +89,8 @@ class ImprovedConfig:
                                  "reflexes after which every neighbour's credit has halved")
     spread_settle: float = setting(1.0, "(trace units)", 0.01, 1000.0,
                                    "own training after which a cell takes half its neighbours' credit")
-    spread_keeps_branch: bool = setting(False, doc="a cell whose weight has the other sign takes no neighbour's credit")
+    spread_keeps_branch: bool = setting(False,
+                                        doc="a cell whose weight has the other sign takes no neighbour's credit")
     weight_limit_s: float = setting(0.5, "s", 0.001, 2.0, "bound on each weight's magnitude")
     flip_at: float = setting(0.95, "(fraction of the bound)", 0.0, 2.0,
                              "a reflex asking more of weights this near their bound asks the opposite (above 1: never)")
@@ -225,7 +231,7 @@ class ImprovedPremotor:
         sign = 1.0 if kind == "extension" else -1.0
         if c.spread_keeps_branch:  # a cell on the other branch learns from its own gates only
             own = self.own_traces.at(now_s).reshape(self.weights.shape)
-            traces = np.where(self.weights * sign < 0.0, np.minimum(own, traces), traces)
+            traces = np.where(self.weights * sign < 0.0, own, traces)  # (own <= traces everywhere)
         self.weights += (sign * gain) * rate * traces
         np.clip(self.weights, -c.weight_limit_s, c.weight_limit_s, out=self.weights)
         self.trained += traces

@@ -15,14 +15,14 @@ where the hardwired reflex would lift (the gated range below ``reflexes.lift_ran
 and below that is the hardwired lift itself, so the oracle's records there are those of before. So
 it stays an upper bound for the learners, which must learn their lift.
 
-A lift above ``gait.tuck_from_amplitude`` (3.0) tucks the gait's swing (``controller.motion.gait``: the foot up
-early, held back, forward and down late), by the fraction :func:`controller.motion.gait.tuck_fraction`
+A lift above ``gait.tuck_from_amplitude`` (3.0) tucks the gait's swing (``controller.motion.gait``:
+the foot up early, held back, forward and down late), by the fraction :func:`controller.motion.gait.tuck_fraction`
 of that lift. The tucked swing needs the block farther ahead when it starts (the shin, near the
 near edge when stance ends, has to be clear of it before the foot is up) and longer to let the
 block pass under the held foot. So, by the same fraction, the oracle plans the take-off at
 ``tucked_takeoff_m`` instead of ``takeoff_m`` and gives the crossing swing the CPG's longest burst
-(``cpg.burst_max_s``) instead of the base one. Up to 0.16 m (a lift of at most 2.9) the fraction is 0: the
-plan of before.
+(``cpg.burst_max_s``) instead of the base one. Up to 0.16 m (a lift of at most 2.9) the fraction is
+0: the plan of before.
 
 It is a Premotor (``controller.stepping.premotor``) like the learner, so it drives the same CPG through the
 same loop, bus and plant; it never learns.
@@ -104,7 +104,8 @@ class OraclePremotor:
     def _lift_for(self, h: float) -> float:
         """The lift for an obstacle ``h`` high [m]: its top plus the margin, over the step height,
         at least the hardwired reflex's and at most the leg's highest."""
-        return min(self._lift_max, max(self._reflexes.lift_amplitude, (h + self.config.lift_margin_m) / self._step_height_m))
+        return min(self._lift_max,
+                   max(self._reflexes.lift_amplitude, (h + self.config.lift_margin_m) / self._step_height_m))
 
     def plan(self, distance_m: float | None) -> float:
         """Burst [s] for the coming swing, given the foot's distance to the near edge."""

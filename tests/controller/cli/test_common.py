@@ -233,7 +233,6 @@ def test_a_command_sets_one_blas_thread_unless_the_environment_chose(monkeypatch
     assert os.environ[common.BLAS_THREADS_ENV] == "4"
 
 
-
 def test_an_interrupt_handled_inside_string_code_still_exits_130_not_by_sigint(tmp_path):
     """CPython 3.11 flags a KeyboardInterrupt that ends any code run from a string (``exec`` of a
     string, as ``dataclasses`` does for every frozen class) as unhandled, even when a ``try``
