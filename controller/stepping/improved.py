@@ -36,7 +36,11 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
 5. **The other branch of a saturated gate** (``flip_at``). A reflex asking more of what its
    gate's own weight (rule 3) already gives at ``flip_at`` of its bound (an extension while the
    weight asks the longest swing) asks the opposite: that swing could not be longer, so the next
-   approach takes an extra, shorter step.
+   approach takes an extra, shorter step. Not for a gate whose swing was tucked
+   (``flip_tucked``, off): a tucked crossing takes the CPG's longest burst whatever its gate's
+   weight, so an extension asked of it is answered by the gates before it (the step before,
+   longer: the take-off nearer), which the flip would shorten instead. On the tuning seeds at
+   0.20 m the flip drove the step before to its shortest, the take-off ever farther.
 6. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
    the step height whatever the obstacle. Here each context has its own amplitude, starting at
    the hardwired one; a contact reflex in the rising part of the swing (the shin or the foot
@@ -89,6 +93,8 @@ class ImprovedConfig:
                                  "reflexes after which every neighbour's credit has halved")
     spread_settle: float = setting(1.0, "(trace units)", 0.01, 1000.0,
                                    "own training after which a cell takes half its neighbours' credit")
+    context_share: float = setting(0.0, "(fraction)", 0.0, 1.0,
+                                   "credit a gate gives the same cells of the other height contexts (0: none)")
     spread_keeps_branch: bool = setting(False,
                                         doc="a cell whose weight has the other sign takes no neighbour's credit")
     weight_limit_s: float = setting(0.5, "s", 0.001, 2.0, "bound on each weight's magnitude")
@@ -96,6 +102,7 @@ class ImprovedConfig:
                              "a reflex asking more of weights this near their bound asks the opposite (above 1: never)")
     flip_gain: float = setting(1.0, "x learning rate", 0.0, 10.0,
                                "a flipped reflex's step, in units of the learning rate (rule 5)")
+    flip_tucked: bool = setting(False, doc="rule 5 also for a reflex judged by a gate whose swing was tucked")
     landing_gate: bool = setting(False, doc="judge a stance reflex by the gate before the last (rule 3; off: the last)")
     landing_on_top: bool = setting(True, doc="rule 3 for a foot landing on top of the block only (foot_on_top in stance)")
     lift_amplitude: float = setting(1.9, "x step height", 1.0, 5.0, "every context's lift before any learning")
@@ -146,6 +153,7 @@ class ImprovedPremotor:
         self.reflexes = 0  # stride reflexes learnt from
         self.too_close = 0  # reflexes learnt as placement because the crossing's gate saw nothing
         self._gates: deque[tuple[int | None, int | None]] = deque(maxlen=3)  # the last three gates' (cell, row)
+        self._tucks: deque[float] = deque(maxlen=3)  # and how tucked each one's swing was (0..1)
         self.memory = GatedMemory(config.stm_tau_s)
         self.traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)
         self.own_traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)  # gated cells only
@@ -169,6 +177,7 @@ class ImprovedPremotor:
         self.memory.gate(cell, now_s)
         self.context = row if cell is not None else None
         self._gates.append((cell, self.context))
+        self._tucks.append(0.0)  # lift_amplitude, called after this, says how tucked
         if cell is None:
             return
         base = row * self.n_cells
@@ -182,6 +191,12 @@ class ImprovedPremotor:
                 if k != 0:  # a neighbour trained by its own mistakes takes less of this cell's credit
                     amount *= fade / (1.0 + own[neighbour] / settle)
                 self.traces.activate(base + neighbour, now_s, amount)
+                share = self.config.context_share
+                if share > 0.0:  # the other heights' rows: the same decision, a different obstacle
+                    for other in range(self.n_contexts):
+                        if other != row:
+                            taken = share * amount / (1.0 + self.own_trained[other, neighbour] / settle)
+                            self.traces.activate(other * self.n_cells + neighbour, now_s, taken)
 
     def gated_weight(self) -> float:
         cell = self.memory.cell
@@ -201,13 +216,17 @@ class ImprovedPremotor:
     def on_reflex(self, kind: str, now_s: float) -> None:
         """The stride part of a reflex (extension: longer strides, placement: shorter), judged by
         the last gate."""
-        self._learn(kind, now_s, self._gate(1))
+        self._learn(kind, now_s, self._gate(1), self._tuck_of(1))
 
     def _gate(self, back: int) -> tuple[int | None, int | None]:
         """(cell, row) of the gate ``back`` gates ago (1: the last); (None, None) before it."""
         return self._gates[-back] if len(self._gates) >= back else (None, None)
 
-    def _learn(self, kind: str, now_s: float, gate: tuple[int | None, int | None]) -> None:
+    def _tuck_of(self, back: int) -> float:
+        """How tucked the swing of the gate ``back`` gates ago was (0 before it)."""
+        return self._tucks[-back] if len(self._tucks) >= back else 0.0
+
+    def _learn(self, kind: str, now_s: float, gate: tuple[int | None, int | None], tucked: float = 0.0) -> None:
         if kind not in ("extension", "placement"):
             raise ValueError(f"unknown reflex kind {kind!r}")
         c = self.config
@@ -216,7 +235,7 @@ class ImprovedPremotor:
         traces = self.traces.at(now_s).reshape(self.weights.shape)
         cell, row = gate
         gain = 1.0
-        if c.flip_at <= 1.0 and cell is not None and row is not None:
+        if c.flip_at <= 1.0 and cell is not None and row is not None and (c.flip_tucked or tucked == 0.0):
             # the swing this gate drove asked all the memory could and still fell short (or long):
             # lengthening (shortening) cannot help; the other branch of the stride map can
             held = float(self.weights[row, cell])
@@ -247,7 +266,10 @@ class ImprovedPremotor:
         self._lift_row = self._row(context)
         amplitude = float(self.lifts[self._lift_row])
         if self._tuck is not None:
-            self._extra_s = self._tuck(amplitude) * self._tucked_extra_s
+            fraction = self._tuck(amplitude)
+            self._extra_s = fraction * self._tucked_extra_s
+            if self._tucks:
+                self._tucks[-1] = fraction
         return amplitude
 
     def on_contact_reflex(self, reflex: Reflex) -> None:
@@ -273,4 +295,4 @@ class ImprovedPremotor:
             if raised > self.lifts[row]:
                 self.lifts[row] = raised
                 self.lift_raises += 1
-        self._learn(kind, reflex.t_s, gate)
+        self._learn(kind, reflex.t_s, gate, self._tuck_of(back))

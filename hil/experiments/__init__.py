@@ -6,7 +6,8 @@ trials with one of them; :mod:`hil.experiments.sweep` runs seeds x heights x met
 pool or Dask; :mod:`hil.experiments.journal` keeps a run's trials on disk as they finish (the
 append-only record a stopped run resumes from, the folder lock); :mod:`hil.experiments.walk` walks on flat ground; :mod:`hil.experiments.oracle` is the
 planner given the true distance (and height); :mod:`hil.experiments.tuning` tries the improved
-learner's settings on the tuning seeds (0-99) only.
+learner's settings on the tuning seeds (0-99) only; :mod:`hil.experiments.window` measures, with the
+oracle, from where before a block the last swing clears it (the take-off window).
 
 May import: ``controller``, ``firmware_sim``, ``protocol``, :mod:`hil.lockstep`,
 :mod:`hil.analysis`; tqdm and dask inside the functions that need them.

@@ -12,6 +12,9 @@ runs 150 trials (``--trials``) of the ``improved`` method for each seed with tho
 trials, mistakes after trial 50 and after trial 100, the failed trials, the contacts no reflex
 heard) and a summary line.
 ``--heights`` mixes heights per trial (the last 50 trials' success per height is printed).
+``--controller SECTION.NAME=VALUE`` changes a setting of the controller the learner runs in (for
+example ``encoder.cell_width_m=0.02``: finer range cells; the sensor board is not changed).
+Each seed's line ends with its successes per 50 trials (``per 50``).
 ``--failures-after N`` also prints each failed trial from trial N on: its last four gates (cell,
 gated range, the weight each cell held as the trial began), its last three footfalls (relative to
 the obstacle's near face) and its first reflex (kind, cause, phase, in the swing or not): what
@@ -62,16 +65,56 @@ def parse_settings(items: list[str]) -> dict[str, Any]:
     return settings
 
 
+def parse_controller(items: list[str]) -> dict[str, dict[str, Any]]:
+    """``section.name=value`` pairs (values as JSON) for the controller's configuration, checked
+    by building it (:func:`controller_config`)."""
+    changes: dict[str, dict[str, Any]] = defaultdict(dict)
+    for item in items:
+        path, sep, value = item.partition("=")
+        section, dot, name = path.strip().partition(".")
+        if not (sep and dot and section and name):
+            raise ValueError(f"--controller {item!r}: give section.name=value (e.g. encoder.cell_width_m=0.02)")
+        try:
+            changes[section][name] = json.loads(value)
+        except json.JSONDecodeError:
+            raise ValueError(f"--controller {item!r}: the value must be a number, true or false") from None
+    controller_config(dict(changes))
+    return dict(changes)
+
+
+def controller_config(changes: dict[str, dict[str, Any]]):
+    """The default controller configuration with ``changes`` ({section: {name: value}}); an unknown
+    section or name, or a value its section refuses, is a ValueError naming it."""
+    from dataclasses import fields, is_dataclass, replace
+
+    from controller.config import ControllerConfig
+
+    config = ControllerConfig()
+    for section, values in changes.items():
+        part = getattr(config, section, None)
+        if not is_dataclass(part):
+            raise ValueError(f"--controller: no controller section {section!r}")
+        known = {f.name for f in fields(part)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"--controller: {section} has no setting {unknown[0]!r}")
+        config = replace(config, **{section: replace(part, **values)})
+    return config
+
+
 def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[float, ...],
-             failures_after: int | None = None) -> dict[str, Any]:
-    """One tuning run: the ``improved`` method with ``settings``; with ``failures_after``, the
-    failed trials from that index on as lines (see the module docstring)."""
+             failures_after: int | None = None, controller: dict[str, dict[str, Any]] | None = None
+             ) -> dict[str, Any]:
+    """One tuning run: the ``improved`` method with ``settings`` in a controller with
+    ``controller``'s changes; with ``failures_after``, the failed trials from that index on as
+    lines (see the module docstring)."""
     from hil.analysis.stats import trials_to_criterion
     from hil.experiments.learn import LearnConfig, LearningRun
     from hil.experiments.methods import build_improved
 
     config = LearnConfig(seed=seed, trials=trials, method="improved", obstacle_height_m=heights[0],
-                         obstacle_heights_m=heights if len(heights) > 1 else ())
+                         obstacle_heights_m=heights if len(heights) > 1 else (),
+                         controller=controller_config(controller or {}))
     premotor = build_improved(config.controller, **settings)
     run = LearningRun(config, premotor=premotor)
     failures: list[str] = []
@@ -91,6 +134,7 @@ def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[fl
             "success": sum(success) / len(success), "mistakes_after_50": success[50:].count(False),
             "mistakes_after_100": success[100:].count(False),
             "failed": [i for i, ok in enumerate(success) if not ok],
+            "per_50": [sum(success[k:k + 50]) for k in range(0, len(success), 50)], "n_cells": premotor.n_cells,
             "late_by_height": [(t["obstacle_height_m"], t["success"]) for t in records[-50:]],
             "contact_misses": sum(t["contact_misses"] for t in records), "failures": failures}
 
@@ -112,7 +156,8 @@ def describe_failure(seed: int, trial: dict[str, Any], weights: Any) -> str:
             f"{' '.join(num(x) for x in trial['footfalls_m'][-3:])}; reflex {reflex}")
 
 
-def _one(args: tuple[int, int, dict[str, Any], tuple[float, ...], int | None]) -> dict[str, Any]:
+def _one(args: tuple[int, int, dict[str, Any], tuple[float, ...], int | None, dict[str, dict[str, Any]]]
+         ) -> dict[str, Any]:
     return run_seed(*args)
 
 
@@ -122,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--trials", type=int, default=150)
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="an ImprovedConfig setting")
     p.add_argument("--heights", default="0.08", help="obstacle heights [m], comma list (several: mixed per trial)")
+    p.add_argument("--controller", action="append", default=[], metavar="SECTION.NAME=VALUE",
+                   help="a setting of the controller the learner runs in, e.g. encoder.cell_width_m=0.02")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--failures-after", type=int, default=None, metavar="N",
                    help="also print each failed trial from trial N on (its last gates, footfalls, reflex)")
@@ -129,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         seeds = parse_seeds(args.seeds)
         settings = parse_settings(args.set)
+        controller = parse_controller(args.controller)
         heights = tuple(float(h) for h in args.heights.split(","))
     except (ValueError, TypeError) as exc:
         print(f"tuning: error: {exc}", file=sys.stderr)
@@ -136,18 +184,19 @@ def main(argv: list[str] | None = None) -> int:
     from multiprocessing import Pool
 
     with Pool(args.workers) as pool:
-        results = pool.map(_one, [(s, args.trials, settings, heights, args.failures_after) for s in seeds])
+        results = pool.map(_one, [(s, args.trials, settings, heights, args.failures_after, controller)
+                                          for s in seeds])
     late: dict[float, list[bool]] = defaultdict(list)
     for r in results:
         print(r["seed"], r["trials_to_criterion"], f"{r['success']:.3f}", r["mistakes_after_50"],
-              r["mistakes_after_100"], r["failed"][:15], f"misses {r['contact_misses']}")
+              r["mistakes_after_100"], r["failed"][:15], f"misses {r['contact_misses']}", f"per 50 {r['per_50']}")
         for line in r["failures"]:
             print("  " + line)
         for h, ok in r["late_by_height"]:
             late[h].append(ok)
     ttc = [r["trials_to_criterion"] if r["trials_to_criterion"] is not None else 10**6 for r in results]
     n = len(results)
-    print(f"SUMMARY {settings} trials to criterion median {statistics.median(ttc)}, mean success "
+    print(f"SUMMARY {settings}{' controller ' + str(controller) if controller else ''} trials to criterion median {statistics.median(ttc)}, mean success "
           f"{statistics.mean(r['success'] for r in results):.3f}, no mistake after 100 on "
           f"{sum(r['mistakes_after_100'] == 0 for r in results)}/{n}, after 50 on "
           f"{sum(r['mistakes_after_50'] == 0 for r in results)}/{n}, contact misses "

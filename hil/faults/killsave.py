@@ -2,8 +2,11 @@
 
 :func:`kill_during_saves` forks, ``n`` times, a child that saves weights in a tight loop
 (:func:`controller.stepping.weights.save_weights`, about 2 ms a save with its two fsyncs) and kills it
-with SIGKILL after a delay drawn uniformly from ``[0, max_delay_s)`` by a seeded numpy Generator,
-so most kills land inside a save. Save number ``k`` writes ``np.full(n_cells, k * STEP)`` and
+with SIGKILL once it has completed a number of saves drawn from ``0..saves_before`` and a further
+delay drawn uniformly from ``[0, max_delay_s)`` (both by a seeded numpy Generator), so most kills
+land inside a save. The child reports each completed save through a pipe: the kill waits for the
+child's progress, not for the wall clock alone, so a busy machine that leaves the child
+unscheduled for a while still sees saves complete and kills land inside them. Save number ``k`` writes ``np.full(n_cells, k * STEP)`` and
 each child continues the counter from the value the parent last loaded, so the parent knows
 exactly which values can be on disk: after each kill the strict load
 (:func:`controller.stepping.weights.load_weights`) must return a value that was written, no older than
@@ -38,15 +41,26 @@ N_CELLS = 28
 CELL_WIDTH_M = 0.04
 
 
-def _child(path: Path, first_k: int) -> None:
-    """Save forever, never return (the parent kills us; exit status 1 if a save raised)."""
+def _child(path: Path, first_k: int, progress: int) -> None:
+    """Save forever, one byte to ``progress`` after each save; never return (the parent kills us;
+    exit status 1 if a save raised)."""
     try:
         k = first_k
         while True:
             save_weights(path, np.full(N_CELLS, k * STEP), CELL_WIDTH_M)
+            os.write(progress, b".")
             k += 1
     finally:
         os._exit(1)
+
+
+def _wait_for_saves(progress: int, saves: int) -> None:
+    """Block until the child has reported ``saves`` completed saves (or closed the pipe by dying)."""
+    while saves > 0:
+        got = os.read(progress, saves)
+        if not got:
+            return
+        saves -= len(got)
 
 
 def _counter(weights: np.ndarray) -> int | None:
@@ -59,10 +73,14 @@ def _temporaries(folder: Path, path: Path) -> int:
     return sum(1 for _ in folder.glob(path.name + ".*.tmp"))
 
 
-def kill_during_saves(n: int, folder: str | Path, seed: int, max_delay_s: float = 0.02) -> dict[str, Any]:
-    """Kill ``n`` saving children with SIGKILL at random instants; load after each kill; count."""
+def kill_during_saves(n: int, folder: str | Path, seed: int, max_delay_s: float = 0.02,
+                      saves_before: int = 2) -> dict[str, Any]:
+    """Kill ``n`` saving children with SIGKILL at random instants (after ``0..saves_before``
+    completed saves and a delay in ``[0, max_delay_s)``); load after each kill; count."""
     if n < 1:
         raise ValueError(f"n must be at least 1, got {n}")
+    if not (isinstance(saves_before, int) and saves_before >= 0):
+        raise ValueError(f"saves_before must be an integer >= 0, got {saves_before!r}")
     if not max_delay_s > 0:
         raise ValueError(f"max_delay_s must be positive, got {max_delay_s!r}")
     folder = Path(folder)
@@ -82,13 +100,21 @@ def kill_during_saves(n: int, folder: str | Path, seed: int, max_delay_s: float 
     t0 = time.perf_counter()
     try:
         for i in range(n):
+            saves = int(rng.integers(0, saves_before + 1))
             delay = float(rng.uniform(0.0, max_delay_s))
+            read_end, write_end = os.pipe()
             pid = os.fork()
             if pid == 0:
-                _child(path, 0 if last_k is None else last_k + 1)
-            time.sleep(delay)
-            os.kill(pid, signal.SIGKILL)
-            _, status = os.waitpid(pid, 0)
+                os.close(read_end)
+                _child(path, 0 if last_k is None else last_k + 1, write_end)
+            os.close(write_end)
+            try:
+                _wait_for_saves(read_end, saves)
+                time.sleep(delay)
+                os.kill(pid, signal.SIGKILL)
+                _, status = os.waitpid(pid, 0)
+            finally:
+                os.close(read_end)
             counts["kills"] += 1
             counts["child_errors"] += not (os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL)
             counts["tmp_files_max"] = max(counts["tmp_files_max"], _temporaries(folder, path))
@@ -141,6 +167,7 @@ def kill_during_saves(n: int, folder: str | Path, seed: int, max_delay_s: float 
         "n": n,
         "seed": seed,
         "max_delay_s": max_delay_s,
+        "saves_before": saves_before,
         "folder": str(folder),
         "elapsed_s": time.perf_counter() - t0,
     }

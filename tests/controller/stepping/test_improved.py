@@ -199,3 +199,26 @@ def test_landing_on_top_judges_only_a_foot_on_the_block_by_the_gate_before():
         p.on_step_onset(1.4, None, context=None)
         p.on_contact_reflex(reflex("extension", 1.45, cause=cause, swing=False, phase=0.05))
         assert p.too_close == too_close, cause
+
+
+def test_a_tucked_crossing_at_the_bound_is_not_flipped_when_flip_tucked_is_off():
+    """A tucked swing already takes the CPG's longest burst: an extension asked of it is answered
+    by the gates before it (the step before, longer), not by the other branch (``flip_tucked``)."""
+    def tucked(flip_tucked: bool, lift: float) -> ImprovedPremotor:
+        p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(spread_cells=0.0, flip_tucked=flip_tucked, lift_max=3.44),
+                             tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3)
+        p.lifts[3] = lift
+        p.weights[3, 12], p.weights[3, 5] = -0.2, 0.5  # the step before short, the crossing's gate at its bound
+        p.on_step_onset(0.0, 12, context=3)
+        assert p.lift_amplitude(0.5, 3) == 1.0  # 0.5 m: beyond the lift's range (0.4 m), no tuck
+        p.on_step_onset(0.7, 5, context=3)
+        p.lift_amplitude(0.2, 3)  # the crossing: lifts (tucked above 3.0)
+        p.on_contact_reflex(reflex("extension", 1.3, cause="foot_on_top", swing=True, phase=0.84))
+        return p
+
+    kept = tucked(False, 3.44)
+    assert kept.flips == 0 and kept.weights[3, 12] > -0.2  # the step before lengthens
+    flipped = tucked(True, 3.44)  # flip_tucked on: rule 5 as before round 5
+    assert flipped.flips == 1 and flipped.weights[3, 12] < -0.2
+    untucked = tucked(False, 2.2)  # a half-sine crossing at its bound: still the other branch
+    assert untucked.flips == 1 and untucked.weights[3, 12] < -0.2

@@ -46,3 +46,18 @@ def test_a_failure_line_names_the_last_gates_with_the_weights_held_as_the_trial_
     assert tuning.describe_failure(46, trial, weights) == (
         "seed 46 trial 54: gates (cell@range:weight) 27@1.458:0.000 17@1.111:0.250 7@0.298:0.500 -@-:-; "
         "footfalls -1.187 -0.769 -0.377; reflex extension foot_on_top phase 0.89 swing")
+
+
+def test_controller_settings_are_named_checked_and_reach_the_run():
+    assert tuning.parse_controller(["encoder.cell_width_m=0.02", "gait.tuck_full_amplitude=3.2"]) == {
+        "encoder": {"cell_width_m": 0.02}, "gait": {"tuck_full_amplitude": 3.2}}
+    assert tuning.controller_config({"encoder": {"cell_width_m": 0.02}}).encoder.n_cells == 56
+    for item, message in (("encoder.cell_width_m", "section.name=value"), ("cell_width_m=0.02", "section.name=value"),
+                          ("nowhere.x=1", "no controller section 'nowhere'"),
+                          ("encoder.width=1", "encoder has no setting 'width'"),
+                          ("encoder.cell_width_m=-1", "cell_width_m"), ("encoder.cell_width_m=x", "number")):
+        with pytest.raises(ValueError, match=message):
+            tuning.parse_controller([item])
+    assert tuning.main(["--controller", "encoder.cell_width_m=-1"]) == 2
+    r = tuning.run_seed(3, 2, {}, (0.08,), controller={"encoder": {"cell_width_m": 0.02}})
+    assert r["per_50"] == [sum(1 for i in range(2) if i not in r["failed"])] and r["n_cells"] == 56
