@@ -55,6 +55,14 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    the motor program of a high step, as the oracle's is (the oracle plans its crossing with the
    longest burst for a tucked swing); where to take off the learner still learns by its weights.
 
+7. **Credit shared across heights** (``context_share``, 0.5). A gate also activates, by that
+   fraction, the traces of the same cells (and their neighbours) in the other height contexts'
+   rows, less as those are trained by their own mistakes (``spread_settle``): where to step at a
+   given distance differs little between heights (the take-off windows overlap), so a context met
+   for the first time starts from what the others learnt. With mixed heights on the tuning seeds
+   it learnt faster (mean success 0.690 to 0.734, seeds 44-55) at the same success in the last 50
+   trials; at one height the other rows are never gated, and nothing changes.
+
 Two settings of round 4 are there to be tried, and off by default: ``flip_gain`` (a reflex
 flipped by rule 5 moves the weights by that many learning steps, so a saturated gate reaches the
 other branch at once) and ``spread_keeps_branch`` (a cell whose weight has the other sign than a
@@ -93,7 +101,7 @@ class ImprovedConfig:
                                  "reflexes after which every neighbour's credit has halved")
     spread_settle: float = setting(1.0, "(trace units)", 0.01, 1000.0,
                                    "own training after which a cell takes half its neighbours' credit")
-    context_share: float = setting(0.0, "(fraction)", 0.0, 1.0,
+    context_share: float = setting(0.5, "(fraction)", 0.0, 1.0,
                                    "credit a gate gives the same cells of the other height contexts (0: none)")
     spread_keeps_branch: bool = setting(False,
                                         doc="a cell whose weight has the other sign takes no neighbour's credit")

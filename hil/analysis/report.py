@@ -21,6 +21,7 @@ from controller.atomic import write_text_atomic
 from controller.errors import InputError, check_stamp
 from hil.analysis.figures import _save, subplots, success_curves  # one way to draw and write PNG + SVG; one curve plot
 from hil.analysis.metrics import read_metrics
+from hil.experiments.conditions import changed_options
 from hil.experiments.methods import resolve
 from hil.experiments.sweep import cells_from_json, height_tag, read_sweep_config
 
@@ -248,7 +249,8 @@ def write_report(out_dir: str | Path) -> dict[str, Any]:
     cmd = (f"elegant-stepping sweep --out {out} --seeds {_seeds_text(config['seeds'])} "
            f"--obstacle-heights-m {','.join(f'{h:g}' for h in config['obstacle_heights_m'])} "
            f"--methods {','.join(resolve(m).name for m in config['methods'])} --trials {config['trials']}"
-           + (" --mixed-heights" if config["mixed_heights"] else ""))
+           + (" --mixed-heights" if config["mixed_heights"] else "")
+           + "".join(f" {w}" for w in changed_options(config.get("conditions", {}))))
     md = ["# Sweep report", "",
           "## Configuration", "",
           f"- methods: {', '.join(config['methods'])}",

@@ -21,6 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folders", nargs="+", help="learn output folders (seeds, heights, baselines)")
     p.add_argument("--out", required=True, help="output folder for the figures")
     p.add_argument("--json", default="-", help="where to list the written files (default: stdout)")
+    p.add_argument("--compare", metavar="NAME", default=None,
+                   help="instead of the paper's figures: one running-success curve per folder, labelled by "
+                        "the folder's name (for example a HIL run beside a lockstep run), into NAME.png/.svg")
 
 
 def _number(x: Any) -> bool:
@@ -75,6 +78,22 @@ def check_figure_inputs(run: dict[str, Any], source: str) -> None:
                 raise bad(where, "is traced but lacks its index or obstacle_height_m")
 
 
+def compare_figure(folders: list[str], out: str, name: str) -> dict[str, list[Path]]:
+    """One running-success curve per folder, labelled by the folder's name, into ``name``."""
+    from controller.errors import InputError
+    from hil.analysis.figures import success_curves
+    from hil.analysis.metrics import load_run
+
+    if not name or Path(name).name != name:
+        raise InputError(f"--compare {name!r}: give a file name without a folder")
+    labels = [Path(f).resolve().name for f in folders]
+    if len(set(labels)) != len(labels):
+        raise InputError(f"--compare: the folders' names label the curves, and two are the same: {labels}")
+    curves = {label: [[bool(t["success"]) for t in load_run(f)["trials"]]] for label, f in zip(labels, folders)}
+    success_curves(curves, Path(out), name=name, title="the same seed, run two ways")
+    return {name: [Path(out) / f"{name}.png", Path(out) / f"{name}.svg"]}
+
+
 def run(args: argparse.Namespace) -> int:
     from controller.cli.common import check_output_file, check_output_folder
     from hil.analysis.figures import paper_figures
@@ -84,7 +103,10 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.json, "--json")
     for folder in args.folders:
         check_figure_inputs(load_run(folder), str(Path(folder) / "metrics.json"))
-    written = paper_figures(args.folders, args.out)
+    if args.compare is not None:
+        written = compare_figure(args.folders, args.out, args.compare)
+    else:
+        written = paper_figures(args.folders, args.out)
     write_json(args.json, {name: [str(p) for p in paths] for name, paths in written.items()})
     print(f"wrote {len(written)} figures (PNG and SVG) into {args.out}", file=sys.stderr)
     return 0

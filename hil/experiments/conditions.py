@@ -113,6 +113,22 @@ def option(key: str) -> str:
     return "--" + key.replace("_", "-")
 
 
+def changed_options(conditions: Mapping[str, Any], skip: tuple[str, ...] = ("obstacle_heights_m",)) -> list[str]:
+    """The command-line words that set ``conditions`` (a :meth:`Conditions.to_json`, e.g. a
+    sweep's ``config.json``) where they differ from the declared defaults, in declaration order:
+    what a report's "reproduce" line needs beyond the grid (``skip``: the heights, which the sweep
+    states itself)."""
+    default = Conditions().to_json()
+    words: list[str] = []
+    for key in SETTINGS:
+        if key in skip or key not in conditions:
+            continue
+        value = conditions[key]
+        if value != default[key]:
+            words += [option(key), _shown(tuple(value) if isinstance(value, list) else value)]
+    return words
+
+
 def parse_text(s: Setting, text: str) -> Any:
     """A condition's value from a command-line word (numbers; an array as a comma list); raises
     ValueError with the problem."""

@@ -23,7 +23,7 @@ def reflex(kind: str, t_s: float, cause: str = "foot_on_top", swing: bool = True
 
 
 def test_the_memory_is_one_hot_but_the_credit_reaches_the_neighbours():
-    p = premotor(spread_cells=1.5, stm_tau_s=1.0)
+    p = premotor(spread_cells=1.5, stm_tau_s=1.0, context_share=0.0)
     p.weights[1, 10], p.weights[1, 11] = 0.2, 0.3
     p.on_step_onset(0.0, 10, context=1)
     assert p.burst_s(0.0) == pytest.approx(BASE + 0.2)  # only the gated cell's weight drives the burst
@@ -32,11 +32,11 @@ def test_the_memory_is_one_hot_but_the_credit_reaches_the_neighbours():
     assert traces[1, 10] == 1.0
     assert traces[1, 11] == pytest.approx(math.exp(-1 / (2 * 1.5 ** 2)))
     assert traces[1, 15] > 0.0 and traces[1, 16] == 0.0  # up to 3 widths away (4.5 cells: 5)
-    assert traces[0].sum() == 0.0 and traces[2].sum() == 0.0  # another context is untouched
+    assert traces[0].sum() == 0.0 and traces[2].sum() == 0.0  # another context is untouched (no sharing)
 
 
 def test_extension_lengthens_placement_shortens_the_traced_weights_within_the_bound():
-    p = premotor(spread_cells=0.0, learning_rate_s=0.3, weight_limit_s=0.4)
+    p = premotor(spread_cells=0.0, learning_rate_s=0.3, weight_limit_s=0.4, context_share=0.0)
     p.on_step_onset(0.0, 5, context=0)
     p.on_reflex("extension", 0.0)
     assert p.weights[0, 5] == pytest.approx(0.3) and np.count_nonzero(p.weights) == 1
@@ -222,3 +222,21 @@ def test_a_tucked_crossing_at_the_bound_is_not_flipped_when_flip_tucked_is_off()
     assert flipped.flips == 1 and flipped.weights[3, 12] < -0.2
     untucked = tucked(False, 2.2)  # a half-sine crossing at its bound: still the other branch
     assert untucked.flips == 1 and untucked.weights[3, 12] < -0.2
+
+
+def test_a_gate_shares_its_credit_with_the_other_heights_less_as_they_learn_their_own():
+    p = premotor(spread_cells=0.0, context_share=0.5, spread_settle=1.0)
+    p.on_step_onset(0.0, 10, context=1)
+    traces = p.traces.at(0.0).reshape(4, 28)
+    assert traces[1, 10] == 1.0 and traces[0, 10] == traces[2, 10] == traces[3, 10] == 0.5
+    assert np.count_nonzero(traces) == 4  # the same cell only (no spread here)
+    assert p.burst_s(0.0) == pytest.approx(BASE)  # the memory is the gated row's: nothing learnt yet
+    p.on_reflex("extension", 0.0)
+    assert p.weights[1, 10] == pytest.approx(0.3) and p.weights[2, 10] == pytest.approx(0.15)
+    q = premotor(spread_cells=0.0, context_share=0.5, spread_settle=1.0)
+    q.own_trained[2, 10] = 1.0  # context 2 has learnt from its own mistakes at this cell: half as much
+    q.on_step_onset(0.0, 10, context=1)
+    assert q.traces.at(0.0).reshape(4, 28)[2, 10] == pytest.approx(0.25)
+    r = premotor(spread_cells=0.0, context_share=0.0)  # off: the other rows untouched
+    r.on_step_onset(0.0, 10, context=1)
+    assert np.count_nonzero(r.traces.at(0.0)) == 1

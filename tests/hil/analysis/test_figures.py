@@ -246,6 +246,27 @@ def test_figures_command_lists_what_it_wrote(tmp_path, capsys):
     assert "no metrics.json" in capsys.readouterr().err
 
 
+def test_figures_compare_draws_one_curve_per_folder_labelled_by_its_name(tmp_path, capsys):
+    import json
+
+    from hil.cli import main
+
+    hil = write_learn_folder(tmp_path / "HIL", 0.08, 0, n_trials=6)
+    lockstep = write_learn_folder(tmp_path / "lockstep", 0.08, 0, n_trials=8)
+    out = tmp_path / "figs"
+    assert main(["figures", str(hil), str(lockstep), "--out", str(out), "--compare", "hil_vs_lockstep"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"hil_vs_lockstep": [str(out / "hil_vs_lockstep.png"),
+                                                                       str(out / "hil_vs_lockstep.svg")]}
+    assert (out / "hil_vs_lockstep.png").stat().st_size > 1000
+    svg = (out / "hil_vs_lockstep.svg").read_text()
+    assert "HIL (1 seed)" in svg and "lockstep (1 seed)" in svg and "learning_curve" not in svg
+    assert not (out / "learning_curve_seeds.png").exists()  # instead of the paper's figures, not beside them
+    twin = write_learn_folder(tmp_path / "other" / "HIL", 0.08, 1)
+    assert main(["figures", str(hil), str(twin), "--out", str(out), "--compare", "x"]) == 3
+    assert "two are the same" in capsys.readouterr().err
+    assert main(["figures", str(hil), "--out", str(out), "--compare", "a/b"]) == 3
+
+
 def test_learn_records_the_first_and_last_trial_for_the_figures(tmp_path):
     import json
 

@@ -363,13 +363,10 @@ def test_pool_and_dask_local_give_the_same_summary(tmp_path):
     assert json.loads((tmp_path / "dask" / "timing.json").read_text())["executor"] == "dask local"
 
 
-def test_an_old_sweep_folder_naming_the_learner_learner_still_reports(tmp_path):
-    """Older sweeps called the paper's learner ``learner``: their folders are read with that alias."""
+def write_finished_sweep(out, config: dict) -> list[dict]:
+    """A sweep folder whose every cell finished 12 trials (2 failures, then 10 successes)."""
     from hil.experiments.sweep import cells_from_json
 
-    out = tmp_path / "old"
-    config = {"methods": ["learner", "none"], "obstacle_heights_m": [0.08], "mixed_heights": False, "seeds": [0],
-              "trials": 12}
     rows = []
     for cell in cells_from_json(config):
         success = [F] * 2 + [T] * 10
@@ -379,6 +376,27 @@ def test_an_old_sweep_folder_naming_the_learner_learner_still_reports(tmp_path):
         rows.append(summary_row(cell, success))
     (out / "config.json").write_text(json.dumps(config))
     (out / "summary.json").write_text(json.dumps(rows))
+    return rows
+
+
+def test_the_reproduce_line_carries_the_changed_conditions(tmp_path):
+    """A sweep under changed conditions is reproduced by its report's command only if the command
+    names them (it once named the grid alone)."""
+    out = tmp_path / "cond"
+    conditions = {"rail_speed_m_s": 0.45, "believed_rail_speed_m_s": 0.5, "start_m": [1.5, 3.0],
+                  "range_noise_m": 0.02, "range_dropout": 0.2, "obstacle_depth_m": 0.1}
+    write_finished_sweep(out, {"methods": ["paper"], "obstacle_heights_m": [0.08], "mixed_heights": False,
+                               "seeds": [0], "trials": 12, "conditions": conditions})
+    md = report.write_report(out)["report"].read_text()
+    assert ("--methods paper --trials 12 --rail-speed-m-s 0.45 --believed-rail-speed-m-s 0.5 --start-m 1.5,3 "
+            "--range-dropout 0.2`") in md  # the defaults (noise 0.02 m, depth 0.1 m) are not repeated
+
+
+def test_an_old_sweep_folder_naming_the_learner_learner_still_reports(tmp_path):
+    """Older sweeps called the paper's learner ``learner``: their folders are read with that alias."""
+    out = tmp_path / "old"
+    rows = write_finished_sweep(out, {"methods": ["learner", "none"], "obstacle_heights_m": [0.08],
+                                      "mixed_heights": False, "seeds": [0], "trials": 12})
     assert rows[0]["cell"] == "learner_h80mm_s0" and rows[0]["success_last_50"] == 10 / 12
     result = report.write_report(out)
     md = result["report"].read_text()
