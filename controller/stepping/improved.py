@@ -54,14 +54,13 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    of ``tucked_extra_s`` (the builder gives the CPG's longest burst less the base one). This is
    the motor program of a high step, as the oracle's is (the oracle plans its crossing with the
    longest burst for a tucked swing); where to take off the learner still learns by its weights.
-
 7. **Credit shared across heights** (``context_share``, 0.5). A gate also activates, by that
    fraction, the traces of the same cells (and their neighbours) in the other height contexts'
    rows, less as those are trained by their own mistakes (``spread_settle``): where to step at a
    given distance differs little between heights (the take-off windows overlap), so a context met
    for the first time starts from what the others learnt. With mixed heights on the tuning seeds
-   it learnt faster (mean success 0.690 to 0.734, seeds 44-55) at the same success in the last 50
-   trials; at one height the other rows are never gated, and nothing changes.
+   it learnt faster at the same success in the last 50 trials (docs/improved.md); at one height
+   the other rows are gated only when the height is misread.
 
 Two settings of round 4 are there to be tried, and off by default: ``flip_gain`` (a reflex
 flipped by rule 5 moves the weights by that many learning steps, so a saturated gate reaches the
