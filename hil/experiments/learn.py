@@ -299,7 +299,11 @@ class LearningRun:
             **({"trace": trace} if trace is not None else {}),
         }
 
-    def run(self, progress: bool = False) -> list[dict[str, Any]]:
+    def run(self, progress: bool = False, before_trial: Callable[[int], None] | None = None,
+            after_trial: Callable[[int, dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+        """Bring the leg up and run every trial, appending each record to ``trials``.
+        ``before_trial(i)`` and ``after_trial(i, record)``, if given, are called around trial ``i``
+        (a tuning run reads the weights each trial began with there)."""
         self.bring_up()
         bar = None
         if progress:
@@ -308,8 +312,12 @@ class LearningRun:
             bar = tqdm(total=self.config.trials, unit="trial", desc="learn" if self.config.learning else "no-learning")
         successes = 0
         for i in range(self.config.trials):
+            if before_trial is not None:
+                before_trial(i)
             trial = self.trial(i)
             self.trials.append(trial)
+            if after_trial is not None:
+                after_trial(i, trial)
             successes += trial["success"]
             if bar is not None:
                 bar.update(1)

@@ -118,15 +118,17 @@ def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[fl
     premotor = build_improved(config.controller, **settings)
     run = LearningRun(config, premotor=premotor)
     failures: list[str] = []
+    held: list[Any] = [None]  # the weights the current trial began with
+
+    def keep_weights(i: int) -> None:
+        held[0] = premotor.weights.copy()
+
+    def read_failure(i: int, trial: dict[str, Any]) -> None:
+        if failures_after is not None and i >= failures_after and not trial["success"]:
+            failures.append(describe_failure(seed, trial, held[0]))
+
     try:
-        run.bring_up()
-        for i in range(trials):
-            held = premotor.weights.copy()
-            trial = run.trial(i)
-            run.trials.append(trial)
-            if failures_after is not None and i >= failures_after and not trial["success"]:
-                failures.append(describe_failure(seed, trial, held))
-        records = run.trials
+        records = run.run(before_trial=keep_weights, after_trial=read_failure)
     finally:
         run.close()
     success = [t["success"] for t in records]

@@ -197,3 +197,18 @@ def test_a_kept_trial_of_before_the_contact_fields_is_checked_on_the_fields_it_h
         _check_rerun(rerun, {"index": 0, "success": True, "sim_s": 5.5}, 0, tmp_path / "trials.jsonl")
     with pytest.raises(NotReproduced):  # a kept record with the fields: checked on them too
         _check_rerun(rerun, {**rerun, "contact_misses": 1}, 0, tmp_path / "trials.jsonl")
+
+
+def test_run_calls_the_trial_hooks_around_each_trial_in_order():
+    from hil.experiments.learn import LearningRun
+
+    run = LearningRun(LearnConfig(trials=3, seed=3))
+    calls: list[tuple] = []
+    try:
+        records = run.run(before_trial=lambda i: calls.append(("before", i, len(run.trials))),
+                          after_trial=lambda i, t: calls.append(("after", i, t["index"], t is run.trials[-1])))
+    finally:
+        run.close()
+    assert len(records) == 3
+    assert calls == [("before", 0, 0), ("after", 0, 0, True), ("before", 1, 1), ("after", 1, 1, True),
+                     ("before", 2, 2), ("after", 2, 2, True)]
