@@ -198,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
             late[h].append(ok)
     ttc = [r["trials_to_criterion"] if r["trials_to_criterion"] is not None else 10**6 for r in results]
     n = len(results)
-    print(f"SUMMARY {settings}{' controller ' + str(controller) if controller else ''} trials to criterion median {statistics.median(ttc)}, mean success "
+    changed = f" controller {controller}" if controller else ""
+    print(f"SUMMARY {settings}{changed} trials to criterion median {statistics.median(ttc)}, mean success "
           f"{statistics.mean(r['success'] for r in results):.3f}, no mistake after 100 on "
           f"{sum(r['mistakes_after_100'] == 0 for r in results)}/{n}, after 50 on "
           f"{sum(r['mistakes_after_50'] == 0 for r in results)}/{n}, contact misses "

@@ -6,8 +6,9 @@ with SIGKILL once it has completed a number of saves drawn from ``0..saves_befor
 delay drawn uniformly from ``[0, max_delay_s)`` (both by a seeded numpy Generator), so most kills
 land inside a save. The child reports each completed save through a pipe: the kill waits for the
 child's progress, not for the wall clock alone, so a busy machine that leaves the child
-unscheduled for a while still sees saves complete and kills land inside them. Save number ``k`` writes ``np.full(n_cells, k * STEP)`` and
-each child continues the counter from the value the parent last loaded, so the parent knows
+unscheduled for a while still sees saves complete and kills land inside them.
+
+Save number ``k`` writes ``np.full(n_cells, k * STEP)`` and each child continues the counter from the value the parent last loaded, so the parent knows
 exactly which values can be on disk: after each kill the strict load
 (:func:`controller.stepping.weights.load_weights`) must return a value that was written, no older than
 the one loaded after the previous kill, or raise only because no save has completed yet; any
