@@ -91,7 +91,7 @@ class ImprovedConfig:
     """The improved learner's settings (defaults tuned on seeds 0-99 only)."""
 
     stm_tau_s: float = setting(1.5, "s", 0.01, 60.0, "short-term memory decay")
-    trace_tau_s: float = setting(2.5, "s", 0.01, 60.0, "synaptic trace decay")
+    trace_tau_s: float = setting(4.0, "s", 0.01, 60.0, "synaptic trace decay")
     learning_rate_s: float = setting(0.3, "s", 0.0, 1.0, "first weight change per unit trace per reflex")
     settle_reflexes: float = setting(0.0, "(trace units)", 0.0, 1000.0,
                                      "training after which a synapse's rate halves (0: the rate never falls)")

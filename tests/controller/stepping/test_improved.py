@@ -129,9 +129,9 @@ def test_a_reflex_asking_more_of_a_saturated_gate_asks_the_other_branch():
     p.weights[0, 7] = 0.5  # the gate's weight at its bound: the swing was as long as it could be
     p.on_step_onset(0.0, 7, context=0)
     p.on_contact_reflex(reflex("extension", 0.9))  # landed on the block all the same
-    assert p.weights[0, 7] == pytest.approx(0.5 - 0.3 * math.exp(-0.9 / 2.5)) and p.flips == 1  # an extra step instead
+    assert p.weights[0, 7] == pytest.approx(0.5 - 0.3 * math.exp(-0.9 / p.config.trace_tau_s)) and p.flips == 1  # an extra step instead
     p.on_contact_reflex(reflex("extension", 2.0))  # below the bound now: the phase decides again
-    assert p.weights[0, 7] > 0.5 - 0.3 * math.exp(-0.9 / 2.5) and p.flips == 1
+    assert p.weights[0, 7] > 0.5 - 0.3 * math.exp(-0.9 / p.config.trace_tau_s) and p.flips == 1
     q = premotor(spread_cells=0.0, flip_at=2.0)  # above 1: never
     q.weights[0, 7] = q.config.weight_limit_s
     q.on_step_onset(0.0, 7, context=0)
