@@ -6,12 +6,13 @@ processes on a real SocketCAN bus) and :mod:`hil.uml` (User-Mode Linux, which gi
 CAN where this one has none); :mod:`hil.faults` (fault injection and the fault matrix);
 :mod:`hil.experiments` (walk, learn, sweep, the method registry); :mod:`hil.analysis` (metrics,
 statistics, figures, reports, replay); :mod:`hil.bench` (performance against the physics alone);
-:mod:`hil.dryrun` (the systemd unit played against the simulated leg); :mod:`hil.cli` (the
+:mod:`hil.dryrun` (the systemd unit played against the simulated leg); :mod:`hil.envs` (Gymnasium
+environments of the leg's tasks, for reinforcement-learning libraries); :mod:`hil.cli` (the
 ``elegant-stepping`` command line, one module per verb). :mod:`hil.profile` holds every timing
 allowance that differs between a native kernel and User-Mode Linux.
 
 May import everything: ``controller``, ``firmware_sim``, ``protocol``, ``urdf``, and the ``sim``
-and ``research`` extras (pybullet; matplotlib, tqdm, dask), the latter inside the functions that
+and ``research`` extras (pybullet; matplotlib, tqdm, dask, gymnasium), the latter inside the functions that
 need them. It is the only package that sees both sides of the bus; nothing imports it.
 """
 

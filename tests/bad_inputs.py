@@ -372,6 +372,13 @@ ROWS: tuple[Row, ...] = (
     Row("sweep_into_a_folder_of_other_things", "a sweep into a folder of other files (--out /tmp; nothing written)",
         ("sweep", "--out", "{tmp}", "--seeds", "0", "--methods", "none", "--trials", "1", "--quiet"), 3,
         ("not a sweep's folder", "a_file"), keep=("a_file",)),
+    # the course (issue 19)
+    Row("course_gap_too_close", "course --gap-m with a minimum closer than the leg recovers from",
+        ("course", "--gap-m", "0.3,2", "--out", "{tmp}/course"), 2, ("--gap-m", "0.6 m")),
+    Row("course_height_beyond_the_leg", "course --heights-m with a height the leg cannot clear",
+        ("course", "--heights-m", "0.04,0.3", "--out", "{tmp}/course"), 2, ("--heights-m", "limit")),
+    Row("course_out_is_file", "course --out naming a file (refused before any obstacle)",
+        ("course", "--obstacles", "2", "--out", "{tmp}/a_file"), 3, ("--out", "a_file"), keep=("a_file",)),
 )
 """Every bad input, in the order of the table."""
 

@@ -46,7 +46,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 EXTRAS: dict[str, tuple[str, ...]] = {
     "sim": ("pybullet",),
-    "research": ("matplotlib", "tqdm", "dask"),
+    "research": ("matplotlib", "tqdm", "dask", "gymnasium"),
 }
 """Each optional extra of the package (``pip install 'elegant-stepping[NAME]'``) and the top-level
 modules it brings; the core install (the leg) has none of them."""

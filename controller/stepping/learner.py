@@ -2,11 +2,16 @@
 
 Temporal gating: at each step onset the range encoder's active cell is gated one-to-one into
 short-term memory (STM). The STM holds that cell at 1 and decays as ``exp(-t / stm_tau_s)`` until
-the next gate replaces it (a gate with no target in view clears it).
+the next gate replaces it (a gate with no target in view clears it, unless ``relax_out_of_view``:
+then the held cell decays on until its activity is below :data:`RELAX_FLOOR`).
 
 Premotor output: ``burst = base + sum_i w_i * STM_i(t)``, read by the CPG at every tick and
 clipped by it to its safe bounds; with one cell active this is ``base + w_k * exp(-t/tau)``. It
-is smooth within a step, and it returns to the base value once the obstacle is out of view.
+is smooth within a step, and it returns to the base value once the obstacle is out of view: at
+once by default, or gradually, on the memory's own decay, with ``relax_out_of_view`` (the paper:
+"after passing the obstacle, the burst length gradually relaxes to its former value"; off by
+default, so the reproduction's records stay as they were; :mod:`hil.experiments.relaxation`
+measures both).
 
 Synaptic traces: a synapse the STM activated keeps a trace that decays as
 ``exp(-t / trace_tau_s)`` (each gate adds 1 to its cell's trace). On a reflex every weight moves
@@ -47,9 +52,17 @@ class LearnerConfig:
     learning_rate_s: float = setting(0.3, "s", 0.0, 1.0, "weight change per unit trace per reflex")
     weight_limit_s: float = setting(0.4, "s", 0.001, 2.0, "bound on each weight's magnitude")
     learning: bool = setting(True, doc="false freezes the weights")
+    relax_out_of_view: bool = setting(False, doc="a gate with no target in view lets the held memory decay on "
+                                      "(the burst relaxes gradually after the obstacle) instead of clearing it")
 
     def __post_init__(self) -> None:
         check_settings(self, "learner")
+
+
+RELAX_FLOOR = 0.01
+"""With ``relax_out_of_view``, a gate with no target in view clears a memory whose activity is
+below this (4.6 time constants after its gate): nothing is held for ever, and an approach starts
+from the base burst."""
 
 
 class GatedMemory:
@@ -124,7 +137,11 @@ class AdaptivePremotor:
 
     def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
         """The gate: the encoder's active cell (or none) into STM; its synapse's trace is activated.
-        The context (obstacle height bin) is ignored: one set of weights for every height."""
+        The context (obstacle height bin) is ignored: one set of weights for every height. With
+        ``relax_out_of_view``, a gate that sees nothing keeps a memory still above
+        :data:`RELAX_FLOOR`, decaying on."""
+        if cell is None and self.config.relax_out_of_view and self.memory.activity(now_s) >= RELAX_FLOOR:
+            return
         self.memory.gate(cell, now_s)
         if cell is not None:
             self.traces.activate(cell, now_s)

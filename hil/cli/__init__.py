@@ -22,6 +22,7 @@ BOTH = SIM + RESEARCH
 VERBS: tuple[Verb, ...] = (
     Verb("walk", "hil.cli.walk", "walk on flat ground through the whole stack in lockstep", BOTH),
     Verb("learn", "hil.cli.learn", "learning trials: approach an obstacle and step over it, again and again", BOTH),
+    Verb("course", "hil.cli.course", "a long walk over obstacles at random spacing, learning online, per method", BOTH),
     Verb("analyze", "hil.cli.analyze", "acceptance figures from one or more learn output folders"),
     Verb("bench", "hil.cli.bench", "performance figures as JSON, ratios measured side by side", BOTH),
     Verb("compare", "hil.cli.compare", "are two runs' records the same, field for field (wall-clock figures aside)?"),

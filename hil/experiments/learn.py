@@ -207,6 +207,22 @@ class LearningRun:
         n = self.config.trials
         return any(index == (k if k >= 0 else n + k) for k in self.config.trace_trials)
 
+    def _place_obstacle(self, x0: float) -> tuple[float, float, float]:
+        """Place the trial's obstacle (the hip at ``x0``); its near edge [m, world x], height and
+        depth [m]: a start distance drawn from ``rng``, then a height if several (the course,
+        :mod:`hil.experiments.course`, places its layout's instead)."""
+        c = self.config
+        near = x0 + float(self.rng.uniform(c.start_min_m, c.start_max_m))
+        height = c.obstacle_height_m
+        if c.obstacle_heights_m:
+            height = float(c.obstacle_heights_m[int(self.rng.integers(len(c.obstacle_heights_m)))])
+        self.ls.plant.add_obstacle(Obstacle(near, height, c.obstacle_depth_m))
+        return near, height, c.obstacle_depth_m
+
+    def _remove_obstacle(self) -> None:
+        """Take the trial's obstacle away at its end (the course keeps those still ahead)."""
+        self.ls.plant.clear_obstacles()
+
     def trial(self, index: int, on_step: Callable[[Lockstep], None] | None = None) -> dict[str, Any]:
         """Run trial ``index``; ``on_step(lockstep)``, if given, is called after every physics step
         (the animation grabs its frames there)."""
@@ -214,12 +230,8 @@ class LearningRun:
         plant, loop = ls.plant, ls.loop
         self._rewind_if_far()
         x0 = plant.carriage_x_m
-        near = x0 + float(self.rng.uniform(c.start_min_m, c.start_max_m))
-        far = near + c.obstacle_depth_m
-        height = c.obstacle_height_m
-        if c.obstacle_heights_m:
-            height = float(c.obstacle_heights_m[int(self.rng.integers(len(c.obstacle_heights_m)))])
-        plant.add_obstacle(Obstacle(near, height, c.obstacle_depth_m))
+        near, height, depth = self._place_obstacle(x0)
+        far = near + depth
         self._near_m = near
         self._height_m = height
         t0 = ls.t_s
@@ -263,7 +275,7 @@ class LearningRun:
                 on_step(ls)
             if loop.phase is Phase.FAULT:
                 raise RuntimeError(f"safe stop during trial {index}: {loop.supervisor.fault_cause}")
-        plant.clear_obstacles()
+        self._remove_obstacle()
         self._near_m = None
         touchdowns = list(zip(self.tracker.touchdown_t_s[n_td0:], self.tracker.footfalls_x_m[n_td0:]))
         before = [(t, x) for t, x in touchdowns if x < near]
@@ -570,7 +582,8 @@ def _check_rerun(trial: dict[str, Any], kept: dict[str, Any], index: int, path: 
 
 
 def learn_into(config: LearnConfig, out_dir: str | Path, *, progress: bool = False, figures: bool = False,
-               overwrite: bool = False, what: str = "--out") -> LearnOutcome:
+               overwrite: bool = False, what: str = "--out",
+               run_class: Callable[[LearnConfig], LearningRun] | None = None, desc: str | None = None) -> LearnOutcome:
     """Run ``config`` into the run folder ``out_dir``, surviving stops.
 
     The folder is checked and locked before PyBullet starts (:func:`hil.experiments.journal.prepare_folder`,
@@ -582,7 +595,8 @@ def learn_into(config: LearnConfig, out_dir: str | Path, *, progress: bool = Fal
     weights are saved every :data:`CHECKPOINT_EVERY` trials and at the end (atomically, one
     generation: the trial record, not the weights, is what a resume starts from). At the end:
     ``weights.npz``, ``figures/`` (with ``figures``), then ``metrics.json`` last (its presence
-    marks a finished run).
+    marks a finished run). ``run_class``: what runs the trials (default :class:`LearningRun`; the
+    course's :class:`hil.experiments.course.CourseRun`); ``desc``: the progress bar's label.
 
     Raises:
         InputError: the folder (see :func:`folder_state`), a damaged trial record, a kept trial
@@ -606,12 +620,13 @@ def learn_into(config: LearnConfig, out_dir: str | Path, *, progress: bool = Fal
                 writer = JournalWriter(out / TRIALS_FILE, keep_bytes=state.journal.good_bytes)
             else:
                 writer = JournalWriter.create(out / TRIALS_FILE, dataclasses.asdict(config))
-            run = LearningRun(config)
+            run = (run_class or LearningRun)(config)
             run.bring_up()
             if progress:
                 from tqdm import tqdm
 
-                desc = ("learn" if config.learning else "no-learning") + (f" (re-run {len(kept)})" if kept else "")
+                desc = ((desc or ("learn" if config.learning else "no-learning"))
+                        + (f" (re-run {len(kept)})" if kept else ""))
                 bar = tqdm(total=config.trials, unit="trial", desc=desc)
             for i in range(config.trials):
                 trial = run.trial(i)

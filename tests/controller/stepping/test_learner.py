@@ -40,6 +40,29 @@ def test_burst_is_base_plus_weighted_memory_and_relaxes_to_base():
     assert p.burst_s(2.0) == 0.3 and p.gated_weight() == 0.0
 
 
+def test_with_relax_out_of_view_the_burst_decays_on_after_the_obstacle_until_the_floor():
+    from controller.stepping.learner import RELAX_FLOOR
+
+    p = AdaptivePremotor(10, 0.3, LearnerConfig(stm_tau_s=1.0, relax_out_of_view=True), weights=np.arange(10) * 0.01)
+    p.on_step_onset(0.0, 4)
+    p.on_step_onset(0.8, None)  # the obstacle out of view: the memory decays on, no step down
+    assert p.burst_s(1.5) == pytest.approx(0.3 + 0.04 * math.exp(-1.5)) and p.gated_weight() == pytest.approx(0.04)
+    before = p.traces.at(0.8).copy()
+    p.on_step_onset(0.8, None)
+    assert np.array_equal(p.traces.at(0.8), before)  # a gate that sees nothing adds no trace
+    p.on_step_onset(2.0, 6)  # a target again: it replaces the memory as any gate does
+    assert p.burst_s(2.0) == pytest.approx(0.36)
+    late = 2.0 - math.log(RELAX_FLOOR) + 0.01  # past the floor: the next empty gate clears it
+    p.on_step_onset(late - 0.02, None)
+    assert p.gated_weight() == pytest.approx(0.06)
+    p.on_step_onset(late, None)
+    assert p.burst_s(late) == 0.3 and p.gated_weight() == 0.0
+    off = AdaptivePremotor(10, 0.3, LearnerConfig(stm_tau_s=1.0), weights=np.arange(10) * 0.01)
+    off.on_step_onset(0.0, 4)
+    off.on_step_onset(0.8, None)  # the default: cleared at once (the reproduction's behaviour)
+    assert off.burst_s(0.9) == 0.3
+
+
 def test_burst_is_exactly_base_plus_modulation_gated_or_not():
     """burst_s skips the modulation's calls when nothing is held: still exactly base + modulation_s."""
     p = AdaptivePremotor(4, 0.3, weights=np.array([0.0, 0.1, -0.2, 0.05]))
