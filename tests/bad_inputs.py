@@ -372,6 +372,9 @@ ROWS: tuple[Row, ...] = (
     Row("sweep_into_a_folder_of_other_things", "a sweep into a folder of other files (--out /tmp; nothing written)",
         ("sweep", "--out", "{tmp}", "--seeds", "0", "--methods", "none", "--trials", "1", "--quiet"), 3,
         ("not a sweep's folder", "a_file"), keep=("a_file",)),
+    # the window (issue 19; --gui without a display: tests/hil/experiments/test_gui.py, which controls DISPLAY)
+    Row("walk_screenshot_without_gui", "walk --screenshot without --gui (there is no window to take it of)",
+        ("walk", "--seconds", "1", "--screenshot", "{tmp}/w.png"), 2, ("--screenshot needs --gui",)),
     # the course (issue 19)
     Row("course_gap_too_close", "course --gap-m with a minimum closer than the leg recovers from",
         ("course", "--gap-m", "0.3,2", "--out", "{tmp}/course"), 2, ("--gap-m", "0.6 m")),

@@ -57,6 +57,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-learning", action="store_true", help="freeze the weights at zero (the baseline)")
     p.add_argument("--no-figures", action="store_true", help="skip DIR/figures/")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    from hil.experiments.gui import add_arguments as add_gui
+
+    add_gui(p)  # --gui, --gui-speed, --screenshot: a window on the run, never part of its configuration
 
 
 def describe(config, summary: dict) -> str:
@@ -79,7 +82,10 @@ def run(args: argparse.Namespace) -> int:
         args.obstacle_heights_m = args.obstacle_height_m
     conditions = conditions_from(args)  # defaults < --experiment FILE < options (a bad file: exit 3)
     prepare_folder(args.out, "--out", create=False)  # before anything else (no simulation imported yet)
-    from hil.experiments.learn import FIGURE_TRACES, LearnConfig, RunStopped, learn_into
+    from hil.experiments.gui import view_from
+
+    view = view_from(args)  # --gui: the display checked before anything starts
+    from hil.experiments.learn import FIGURE_TRACES, LearnConfig, LearningRun, RunStopped, learn_into
 
     config = LearnConfig(
         trials=args.trials,
@@ -91,8 +97,15 @@ def run(args: argparse.Namespace) -> int:
     )
     with sigterm_as_sigint():  # SIGTERM stops like SIGINT: what finished is kept
         try:
+            watched = {}
+            if view is not None:  # the same run in a window (hil.experiments.gui)
+                import functools
+
+                from hil.experiments.gui import watched_harness
+
+                watched = {"run_class": functools.partial(LearningRun, harness=watched_harness(view))}
             outcome = learn_into(config, args.out, progress=not args.quiet, figures=not args.no_figures,
-                                 overwrite=args.overwrite)
+                                 overwrite=args.overwrite, **watched)
         except RunStopped as stop:
             print(f"elegant-stepping learn: stopped after {stop.recorded} of {stop.total} trials; "
                   f"run the same command again to resume", file=sys.stderr)
@@ -100,8 +113,10 @@ def run(args: argparse.Namespace) -> int:
     s = outcome.metrics["summary"]
     if outcome.status == "finished":
         print(f"{args.out} already holds this finished run ({describe(config, s)}); nothing to run "
-              f"(--overwrite runs it again)")
+              f"(--overwrite runs it again){'; no window, no screenshot' if view is not None else ''}")
         return 0
+    if view is not None and view.shot is not None:
+        print(view.shot.describe(), file=sys.stderr)
     resumed = f"resumed after {outcome.kept} kept trials (re-run and checked); " if outcome.status == "resumed" else ""
     print(f"{describe(config, s)}; {resumed}{s['sim_s']:.0f} s simulated in {s['wall_s']:.0f} s "
           f"({s['trials_per_minute']:.0f} trials/min); wrote {args.out}/metrics.json"

@@ -11,7 +11,7 @@ import logging
 import math
 import time
 from dataclasses import replace
-from typing import Any
+from typing import Any, Callable
 
 from controller.config import ControllerConfig
 from controller.errors import stamp
@@ -33,9 +33,12 @@ def walk_config(seed: int = 0, burst_s: float | None = None) -> LockstepConfig:
 
 
 def run_walk(seconds: float, seed: int = 0, burst_s: float | None = None, *, progress: bool = False,
-             config: LockstepConfig | None = None) -> dict[str, Any]:
+             config: LockstepConfig | None = None,
+             harness: Callable[..., Lockstep] = Lockstep) -> dict[str, Any]:
     """Walk for ``seconds`` of simulated time and return the metrics (see ``elegant-stepping walk``),
-    stamped (:data:`WALK_KIND`, :data:`WALK_VERSION`)."""
+    stamped (:data:`WALK_KIND`, :data:`WALK_VERSION`). ``harness``: what builds the lockstep from
+    the configuration (default :class:`Lockstep`; ``walk --gui`` passes
+    :func:`hil.experiments.gui.watched_harness`, a window on the same run)."""
     cfg = config or walk_config(seed, burst_s)
     from firmware_sim.plant import RigPlant
 
@@ -43,7 +46,7 @@ def run_walk(seconds: float, seed: int = 0, burst_s: float | None = None, *, pro
         raise ValueError(f"a {seconds} s walk at {cfg.rig.rail_speed_m_s} m/s would run off the "
                          f"{RigPlant.GROUND_END_X_M:.0f} m of ground; walk for less time")
     wall0 = time.perf_counter()
-    with Lockstep(cfg) as ls:
+    with harness(cfg) as ls:
         tracker = FootfallTracker(ls.plant)
         n_steps = int(round(seconds * cfg.rig.physics_hz))
         bar = None
