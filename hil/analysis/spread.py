@@ -41,6 +41,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from controller.errors import InputError
+from hil.analysis.metrics import footfall_std_by_step
 
 STEPS = 4
 """Footfalls before the obstacle the paper's Fig. 3 shows."""
@@ -127,14 +128,11 @@ def analyse(groups: dict[float, list[dict[str, Any]]], first: int, last: int, *,
         runs = groups[h]
         sd = np.array([run_sd_by_step(r["trials"], first, last) for r in runs])  # runs x steps
         row: dict[str, Any] = {"seeds": sorted(r["seed"] for r in runs), "mean_sd_m": [], "ci95_m": [],
-                               "pooled_sd_m": []}
+                               "pooled_sd_m": footfall_std_by_step(runs, first, last, STEPS)}
         for k in range(STEPS):
             col = sd[:, k][~np.isnan(sd[:, k])]
             row["mean_sd_m"].append(float(col.mean()) if len(col) else None)
             row["ci95_m"].append(list(bootstrap_mean_ci(col, rng, resamples)) if len(col) else None)
-            xs_k = [t["footfalls_m"][-(k + 1)] for r in runs for t in r["trials"][first - 1 : last]
-                    if len(t["footfalls_m"]) > k]
-            row["pooled_sd_m"].append(statistics.pstdev(xs_k) if len(xs_k) > 1 else None)
         for r_sd in sd:
             xs.append(h)
             for k in range(STEPS):

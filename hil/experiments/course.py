@@ -224,18 +224,15 @@ class CourseRun(LearningRun):
         """Past :attr:`REWIND_AFTER_M`, at a trial's start with the foot in the air or the next
         obstacle at least :attr:`REWIND_CLEAR_M` ahead (wait for the foot to lift): take the
         obstacles away, move the rig back and put them back where they were relative to it."""
-        ls, plant = self.ls, self.ls.plant
+        plant = self.ls.plant
         x = plant.carriage_x_m
         if x < self.REWIND_AFTER_M:
             return
-        airborne = not plant.contacts()[0] and plant.foot_position()[1] >= 0.02
-        if not airborne and self._placed and self._world(self._placed[0]) - x < self.REWIND_CLEAR_M:
+        if not self._foot_in_air() and self._placed and self._world(self._placed[0]) - x < self.REWIND_CLEAR_M:
             if x > self.GROUND_LIMIT_M:
                 raise RuntimeError(f"the course ran {x:.0f} m without a moment to rewind the rail in")
             return  # at a later trial's start
-        while plant.contacts()[0] or plant.foot_position()[1] < 0.02:
-            ls.step()
-            self.tracker.update()
+        self._wait_foot_in_air()
         plant.clear_obstacles()
         plant.rewind_rail(self.REWIND_AFTER_M)
         self._origin_m -= self.REWIND_AFTER_M

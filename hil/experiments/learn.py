@@ -195,13 +195,22 @@ class LearningRun:
 
     def _rewind_if_far(self) -> None:
         """Past REWIND_AFTER_M, wait for the foot to be in the air and move the rig back."""
-        ls, plant = self.ls, self.ls.plant
+        plant = self.ls.plant
         if plant.carriage_x_m < self.REWIND_AFTER_M:
             return
-        while plant.contacts()[0] or plant.foot_position()[1] < 0.02:
-            ls.step()
-            self.tracker.update()
+        self._wait_foot_in_air()
         plant.rewind_rail(self.REWIND_AFTER_M)
+
+    def _foot_in_air(self) -> bool:
+        """The foot off the ground: no foot contact and at least 2 cm up."""
+        plant = self.ls.plant
+        return not plant.contacts()[0] and plant.foot_position()[1] >= 0.02
+
+    def _wait_foot_in_air(self) -> None:
+        """Step the lockstep (tracking footfalls) until :meth:`_foot_in_air`."""
+        while not self._foot_in_air():
+            self.ls.step()
+            self.tracker.update()
 
     def traced(self, index: int) -> bool:
         n = self.config.trials
