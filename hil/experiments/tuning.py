@@ -15,6 +15,10 @@ heard) and a summary line.
 ``--controller SECTION.NAME=VALUE`` changes a setting of the controller the learner runs in (for
 example ``encoder.cell_width_m=0.02``: finer range cells; the sensor board is not changed).
 Each seed's line ends with its successes per 50 trials (``per 50``).
+``--condition NAME=VALUE`` changes a condition of the run (a :class:`hil.experiments.learn.LearnConfig`
+field: ``rail_speed_m_s``, ``believed_rail_speed_m_s``, ``range_noise_m``, ``range_dropout_prob``,
+``start_min_m``, ``start_max_m``, ``obstacle_depth_m``), to tune under the changed conditions
+issue 18 names without touching the held-out seeds.
 ``--failures-after N`` also prints each failed trial from trial N on: its last four gates (cell,
 gated range, the weight each cell held as the trial began), its last three footfalls (relative to
 the obstacle's near face) and its first reflex (kind, cause, phase, in the swing or not): what
@@ -82,6 +86,29 @@ def parse_controller(items: list[str]) -> dict[str, dict[str, Any]]:
     return dict(changes)
 
 
+CONDITIONS = ("rail_speed_m_s", "believed_rail_speed_m_s", "range_noise_m", "range_dropout_prob",
+              "start_min_m", "start_max_m", "obstacle_depth_m")
+"""The run's conditions ``--condition`` may change (the rest of LearnConfig is the tuning's own)."""
+
+
+def parse_conditions(items: list[str]) -> dict[str, float]:
+    """``name=value`` pairs for :data:`CONDITIONS`, checked by building a LearnConfig."""
+    from hil.experiments.learn import LearnConfig
+
+    conditions: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or name not in CONDITIONS:
+            raise ValueError(f"--condition {item!r}: give name=value, name one of {', '.join(CONDITIONS)}")
+        try:
+            conditions[name] = float(value)
+        except ValueError:
+            raise ValueError(f"--condition {item!r}: the value must be a number") from None
+    LearnConfig(**conditions)  # out-of-range values (ValueError)
+    return conditions
+
+
 def controller_config(changes: dict[str, dict[str, Any]]):
     """The default controller configuration with ``changes`` ({section: {name: value}}); an unknown
     section or name, or a value its section refuses, is a ValueError naming it."""
@@ -103,18 +130,18 @@ def controller_config(changes: dict[str, dict[str, Any]]):
 
 
 def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[float, ...],
-             failures_after: int | None = None, controller: dict[str, dict[str, Any]] | None = None
-             ) -> dict[str, Any]:
+             failures_after: int | None = None, controller: dict[str, dict[str, Any]] | None = None,
+             conditions: dict[str, float] | None = None) -> dict[str, Any]:
     """One tuning run: the ``improved`` method with ``settings`` in a controller with
-    ``controller``'s changes; with ``failures_after``, the failed trials from that index on as
-    lines (see the module docstring)."""
+    ``controller``'s changes, under ``conditions`` (LearnConfig fields); with ``failures_after``,
+    the failed trials from that index on as lines (see the module docstring)."""
     from hil.analysis.stats import trials_to_criterion
     from hil.experiments.learn import LearnConfig, LearningRun
     from hil.experiments.methods import build_improved
 
     config = LearnConfig(seed=seed, trials=trials, method="improved", obstacle_height_m=heights[0],
                          obstacle_heights_m=heights if len(heights) > 1 else (),
-                         controller=controller_config(controller or {}))
+                         controller=controller_config(controller or {}), **(conditions or {}))
     premotor = build_improved(config.controller, **settings)
     run = LearningRun(config, premotor=premotor)
     failures: list[str] = []
@@ -138,7 +165,8 @@ def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[fl
             "failed": [i for i, ok in enumerate(success) if not ok],
             "per_50": [sum(success[k:k + 50]) for k in range(0, len(success), 50)], "n_cells": premotor.n_cells,
             "late_by_height": [(t["obstacle_height_m"], t["success"]) for t in records[-50:]],
-            "contact_misses": sum(t["contact_misses"] for t in records), "failures": failures}
+            "contact_misses": sum(t["contact_misses"] for t in records), "failures": failures,
+            "conditions": {name: getattr(config, name) for name in CONDITIONS}}
 
 
 def describe_failure(seed: int, trial: dict[str, Any], weights: Any) -> str:
@@ -158,8 +186,8 @@ def describe_failure(seed: int, trial: dict[str, Any], weights: Any) -> str:
             f"{' '.join(num(x) for x in trial['footfalls_m'][-3:])}; reflex {reflex}")
 
 
-def _one(args: tuple[int, int, dict[str, Any], tuple[float, ...], int | None, dict[str, dict[str, Any]]]
-         ) -> dict[str, Any]:
+def _one(args: tuple[int, int, dict[str, Any], tuple[float, ...], int | None, dict[str, dict[str, Any]],
+                    dict[str, float]]) -> dict[str, Any]:
     return run_seed(*args)
 
 
@@ -171,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--heights", default="0.08", help="obstacle heights [m], comma list (several: mixed per trial)")
     p.add_argument("--controller", action="append", default=[], metavar="SECTION.NAME=VALUE",
                    help="a setting of the controller the learner runs in, e.g. encoder.cell_width_m=0.02")
+    p.add_argument("--condition", action="append", default=[], metavar="NAME=VALUE",
+                   help="a condition of the run, e.g. rail_speed_m_s=0.45 (one of: " + ", ".join(CONDITIONS) + ")")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--failures-after", type=int, default=None, metavar="N",
                    help="also print each failed trial from trial N on (its last gates, footfalls, reflex)")
@@ -179,6 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         seeds = parse_seeds(args.seeds)
         settings = parse_settings(args.set)
         controller = parse_controller(args.controller)
+        conditions = parse_conditions(args.condition)
         heights = tuple(float(h) for h in args.heights.split(","))
     except (ValueError, TypeError) as exc:
         print(f"tuning: error: {exc}", file=sys.stderr)
@@ -186,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     from multiprocessing import Pool
 
     with Pool(args.workers) as pool:
-        results = pool.map(_one, [(s, args.trials, settings, heights, args.failures_after, controller)
+        results = pool.map(_one, [(s, args.trials, settings, heights, args.failures_after, controller, conditions)
                                           for s in seeds])
     late: dict[float, list[bool]] = defaultdict(list)
     for r in results:
@@ -198,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
             late[h].append(ok)
     ttc = [r["trials_to_criterion"] if r["trials_to_criterion"] is not None else 10**6 for r in results]
     n = len(results)
-    changed = f" controller {controller}" if controller else ""
+    changed = (f" controller {controller}" if controller else "") + (f" conditions {conditions}" if conditions else "")
     print(f"SUMMARY {settings}{changed} trials to criterion median {statistics.median(ttc)}, mean success "
           f"{statistics.mean(r['success'] for r in results):.3f}, no mistake after 100 on "
           f"{sum(r['mistakes_after_100'] == 0 for r in results)}/{n}, after 50 on "

@@ -61,3 +61,17 @@ def test_controller_settings_are_named_checked_and_reach_the_run():
     assert tuning.main(["--controller", "encoder.cell_width_m=-1"]) == 2
     r = tuning.run_seed(3, 2, {}, (0.08,), controller={"encoder": {"cell_width_m": 0.02}})
     assert r["per_50"] == [sum(1 for i in range(2) if i not in r["failed"])] and r["n_cells"] == 56
+
+
+def test_conditions_are_named_checked_and_reach_the_run():
+    assert tuning.parse_conditions(["rail_speed_m_s=0.45", "believed_rail_speed_m_s=0.5"]) == {
+        "rail_speed_m_s": 0.45, "believed_rail_speed_m_s": 0.5}
+    for item, message in (("rail_speed_m_s", "name=value"), ("seed=1000", "name one of"),
+                          ("trials=5", "name one of"), ("range_noise_m=x", "number"),
+                          ("rail_speed_m_s=-1", "ground_speed_m_s")):
+        with pytest.raises(ValueError, match=message):
+            tuning.parse_conditions([item])
+    assert tuning.main(["--condition", "seed=1000"]) == 2  # no way round the held-out rule
+    r = tuning.run_seed(3, 1, {}, (0.08,), conditions={"rail_speed_m_s": 0.45, "believed_rail_speed_m_s": 0.5})
+    assert r["conditions"]["rail_speed_m_s"] == 0.45 and r["conditions"]["believed_rail_speed_m_s"] == 0.5
+    assert tuning.run_seed(3, 1, {}, (0.08,))["conditions"]["rail_speed_m_s"] == 0.5
