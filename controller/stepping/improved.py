@@ -67,6 +67,12 @@ flipped by rule 5 moves the weights by that many learning steps, so a saturated 
 other branch at once) and ``spread_keeps_branch`` (a cell whose weight has the other sign than a
 reflex asks takes only its own gates' credit, not its neighbours'); docs/improved.md, "Round 4".
 
+Two of round 7, off by default, for the late mistakes on cells met for the first time:
+``fill_new_cells`` (a cell gated for the first time takes the mean of its gated neighbours'
+weights) and ``fade_gated_only`` (the neighbours' credit fades only for cells gated before). On
+the tuning seeds neither did better (docs/improved.md, "Round 7"): at the boundary between a
+long crossing and a short step, a new cell's neighbours disagree.
+
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
 to be tried, and off by default (0): with the spread it cost late mistakes on the tuning seeds.
@@ -117,6 +123,11 @@ class ImprovedConfig:
     lift_max: float = setting(3.4, "x step height", 1.0, 5.0, "highest lift (the builder: from the leg's limits)")
     lift_phase: float = setting(0.5, "(fraction of the swing)", 0.0, 1.0, "a swing contact before this means too low")
     lift_range_m: float = setting(0.40, "m", 0.0, 3.0, "gated range below which the lift applies")
+    fill_new_cells: float = setting(0.0, "cells", 0.0, 10.0,
+                                    "a cell gated for the first time takes the mean of its gated neighbours' weights "
+                                    "within this many cells (0: off; round 7, docs/improved.md)")
+    fade_gated_only: bool = setting(False, doc="the neighbours' credit fades (spread_fade) only for cells "
+                                    "gated before: one never met keeps its full share (round 7)")
     learning: bool = setting(True, doc="false freezes the weights and the lifts")
 
     def __post_init__(self) -> None:
@@ -165,6 +176,8 @@ class ImprovedPremotor:
         self.traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)
         self.own_traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)  # gated cells only
         self.own_trained = np.zeros((n_contexts, n_cells))  # the own trace each cell was trained with
+        self.visits = np.zeros((n_contexts, n_cells), dtype=np.int64)  # how often each cell was gated
+        self.filled = 0  # cells whose first weight came from their neighbours (fill_new_cells)
         self.context: int | None = None  # the row of the cell held in STM
         self._lift_row: int | None = None  # the row whose lift the current step cycle uses
         reach = int(math.ceil(3.0 * config.spread_cells))
@@ -187,6 +200,9 @@ class ImprovedPremotor:
         self._tucks.append(0.0)  # lift_amplitude, called after this, says how tucked
         if cell is None:
             return
+        if self.visits[row, cell] == 0 and self.config.fill_new_cells > 0.0 and self.config.learning:
+            self._fill(row, cell)
+        self.visits[row, cell] += 1
         base = row * self.n_cells
         self.own_traces.activate(base + cell, now_s)
         own = self.own_trained[row]
@@ -196,7 +212,8 @@ class ImprovedPremotor:
             neighbour = cell + k
             if 0 <= neighbour < self.n_cells:
                 if k != 0:  # a neighbour trained by its own mistakes takes less of this cell's credit
-                    amount *= fade / (1.0 + own[neighbour] / settle)
+                    faded = fade if not self.config.fade_gated_only or self.visits[row, neighbour] > 0 else 1.0
+                    amount *= faded / (1.0 + own[neighbour] / settle)
                 self.traces.activate(base + neighbour, now_s, amount)
                 share = self.config.context_share
                 if share > 0.0:  # the other heights' rows: the same decision, a different obstacle
@@ -204,6 +221,23 @@ class ImprovedPremotor:
                         if other != row:
                             taken = share * amount / (1.0 + self.own_trained[other, neighbour] / settle)
                             self.traces.activate(other * self.n_cells + neighbour, now_s, taken)
+
+    def _fill(self, row: int, cell: int) -> None:
+        """A cell met for the first time starts from what its neighbours met before it learnt:
+        the weight is the mean of the gated neighbours' weights within ``fill_new_cells`` cells,
+        each by how near it is (the spread's Gaussian) and how often it was gated."""
+        reach = int(self.config.fill_new_cells)
+        width = self.config.fill_new_cells
+        total = amount = 0.0
+        for k in range(-reach, reach + 1):
+            neighbour = cell + k
+            if k != 0 and 0 <= neighbour < self.n_cells and self.visits[row, neighbour] > 0:
+                share = math.exp(-k * k / (2.0 * width * width)) * float(self.visits[row, neighbour])
+                total += share * float(self.weights[row, neighbour])
+                amount += share
+        if amount > 0.0:
+            self.weights[row, cell] = total / amount
+            self.filled += 1
 
     def gated_weight(self) -> float:
         cell = self.memory.cell

@@ -21,8 +21,9 @@ field: ``rail_speed_m_s``, ``believed_rail_speed_m_s``, ``range_noise_m``, ``ran
 issue 18 names without touching the held-out seeds.
 ``--failures-after N`` also prints each failed trial from trial N on: its last four gates (cell,
 gated range, the weight each cell held as the trial began), its last three footfalls (relative to
-the obstacle's near face) and its first reflex (kind, cause, phase, in the swing or not): what
-docs/improved.md's account of the late mistakes was read from.
+the obstacle's near face), its first reflex (kind, cause, phase, in the swing or not), and how
+often its path (its last three gated cells) and its last gated cell were met in the trials before
+it: what docs/improved.md's account of the late mistakes was read from.
 
 May import what :mod:`hil.experiments` may.
 """
@@ -150,9 +151,12 @@ def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[fl
     def keep_weights(i: int) -> None:
         held[0] = premotor.weights.copy()
 
+    met: list[tuple[tuple[int, ...], bool]] = []  # each trial's path (its gated cells) and success
+
     def read_failure(i: int, trial: dict[str, Any]) -> None:
         if failures_after is not None and i >= failures_after and not trial["success"]:
-            failures.append(describe_failure(seed, trial, held[0]))
+            failures.append(describe_failure(seed, trial, held[0], met))
+        met.append((path_of(trial), bool(trial["success"])))
 
     try:
         records = run.run(before_trial=keep_weights, after_trial=read_failure)
@@ -169,9 +173,17 @@ def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[fl
             "conditions": {name: getattr(config, name) for name in CONDITIONS}}
 
 
-def describe_failure(seed: int, trial: dict[str, Any], weights: Any) -> str:
+def path_of(trial: dict[str, Any]) -> tuple[int, ...]:
+    """A trial's path: its last three gated cells (those that held one), in order."""
+    return tuple(c for c in trial["gated_cells"] if c is not None)[-3:]
+
+
+def describe_failure(seed: int, trial: dict[str, Any], weights: Any,
+                     met: list[tuple[tuple[int, ...], bool]] | None = None) -> str:
     """One line for a failed trial: its last four gates (cell, gated range [m], the weight the
-    cell held as the trial began [s]), last three footfalls [m] and first reflex."""
+    cell held as the trial began [s]), last three footfalls [m] and first reflex; with ``met``
+    (the earlier trials' paths and successes), how often its path (:func:`path_of`) and its last
+    gated cell were met before, and how many of those trials succeeded."""
     def num(x: float | None) -> str:
         return "-" if x is None else f"{x:.3f}"
 
@@ -182,8 +194,15 @@ def describe_failure(seed: int, trial: dict[str, Any], weights: Any) -> str:
     first = trial["reflexes"][0] if trial["reflexes"] else None
     reflex = "none" if first is None else (f"{first['kind']} {first['cause']} phase {first['phase']:.2f} "
                                            f"{'swing' if first['swing'] else 'stance'}")
-    return (f"seed {seed} trial {trial['index']}: gates (cell@range:weight) {' '.join(gates)}; footfalls "
+    line = (f"seed {seed} trial {trial['index']}: gates (cell@range:weight) {' '.join(gates)}; footfalls "
             f"{' '.join(num(x) for x in trial['footfalls_m'][-3:])}; reflex {reflex}")
+    if met is None:
+        return line
+    path = path_of(trial)
+    same = [ok for p, ok in met if p == path]
+    last = [ok for p, ok in met if p and path and p[-1] == path[-1]]
+    return (f"{line}; path met before {len(same)} ({sum(same)} ok), "
+            f"last cell {len(last)} ({sum(last)} ok)")
 
 
 def _one(args: tuple[int, int, dict[str, Any], tuple[float, ...], int | None, dict[str, dict[str, Any]],

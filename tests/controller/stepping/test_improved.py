@@ -240,3 +240,46 @@ def test_a_gate_shares_its_credit_with_the_other_heights_less_as_they_learn_thei
     r = premotor(spread_cells=0.0, context_share=0.0)  # off: the other rows untouched
     r.on_step_onset(0.0, 10, context=1)
     assert np.count_nonzero(r.traces.at(0.0)) == 1
+
+
+def test_a_cell_gated_for_the_first_time_starts_from_its_gated_neighbours():
+    p = premotor(fill_new_cells=2.0, context_share=0.0)
+    p.on_step_onset(0.0, 10, context=1)
+    assert p.weights[1, 10] == 0.0 and p.filled == 0  # no neighbour gated yet: nothing to take
+    p.on_step_onset(0.7, 12, context=1)
+    p.on_step_onset(1.4, 12, context=1)
+    assert p.filled == 1 and p.weights[1, 12] == 0.0  # cell 10, two away, was gated: its weight, 0
+    p.weights[1, 10], p.weights[1, 12], p.weights[1, 14] = 0.1, 0.4, -0.5  # 14 never gated: not heard
+    p.on_step_onset(2.1, 11, context=1)
+    # cell 10 (gated once, 1 away) and cell 12 (gated twice, 1 away): by visits, the Gaussian equal
+    assert p.weights[1, 11] == pytest.approx((0.1 * 1 + 0.4 * 2) / 3) and p.filled == 2
+    p.weights[1, 11] = -0.2
+    p.on_step_onset(2.8, 11, context=1)  # the second visit keeps what the cell learnt
+    assert p.weights[1, 11] == -0.2 and p.filled == 2
+    p.on_step_onset(3.5, 13, context=2)  # another context's row has no gated neighbours
+    assert p.weights[2, 13] == 0.0
+    off = premotor(context_share=0.0)  # the default: off
+    off.on_step_onset(0.0, 12, context=1)
+    off.weights[1, 12] = 0.4
+    off.on_step_onset(0.7, 11, context=1)
+    assert off.weights[1, 11] == 0.0 and off.filled == 0
+
+
+def test_with_fade_gated_only_a_neighbour_never_gated_keeps_its_full_share():
+    p = premotor(spread_cells=1.0, spread_fade=2.0, spread_settle=1.0, context_share=0.0, fade_gated_only=True)
+    p.on_step_onset(0.0, 11, context=0)  # cell 11 gated once (and trained: its own reflex)
+    p.on_reflex("extension", 0.0)
+    p.on_step_onset(100.0, 9, context=0)
+    p.on_reflex("extension", 100.0)  # two reflexes: the fade is 1 / (1 + 2 / 2) = 0.5
+    p.on_step_onset(200.0, 10, context=0)
+    traces = p.traces.at(200.0)
+    own_11 = float(p.own_trained[0, 11])
+    assert traces[11] == pytest.approx(0.5 * math.exp(-0.5) / (1.0 + own_11), rel=1e-3)  # gated before: faded
+    assert traces[12] == pytest.approx(math.exp(-2.0), rel=1e-3)  # never gated: its full share
+    q = premotor(spread_cells=1.0, spread_fade=2.0, spread_settle=1.0, context_share=0.0)  # the default
+    q.on_step_onset(0.0, 11, context=0)
+    q.on_reflex("extension", 0.0)
+    q.on_step_onset(100.0, 9, context=0)
+    q.on_reflex("extension", 100.0)
+    q.on_step_onset(200.0, 10, context=0)
+    assert q.traces.at(200.0)[12] == pytest.approx(0.5 * math.exp(-2.0), rel=1e-3)

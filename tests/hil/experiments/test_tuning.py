@@ -46,6 +46,10 @@ def test_a_failure_line_names_the_last_gates_with_the_weights_held_as_the_trial_
     assert tuning.describe_failure(46, trial, weights) == (
         "seed 46 trial 54: gates (cell@range:weight) 27@1.458:0.000 17@1.111:0.250 7@0.298:0.500 -@-:-; "
         "footfalls -1.187 -0.769 -0.377; reflex extension foot_on_top phase 0.89 swing")
+    met = [((26, 17, 7), True), ((27, 17, 7), False), ((27, 17, 7), True), ((25, 15, 6), True)]
+    assert tuning.describe_failure(46, trial, weights, met).endswith(
+        "swing; path met before 2 (1 ok), last cell 3 (2 ok)")
+    assert tuning.path_of(trial) == (27, 17, 7)
 
 
 def test_controller_settings_are_named_checked_and_reach_the_run():
