@@ -37,8 +37,8 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    gate's own weight (rule 3) already gives at ``flip_at`` of its bound (an extension while the
    weight asks the longest swing) asks the opposite: that swing could not be longer, so the next
    approach takes an extra, shorter step. Not for a gate whose swing was tucked
-   (``flip_tucked``, off): a tucked crossing takes the CPG's longest burst whatever its gate's
-   weight, so an extension asked of it is answered by the gates before it (the step before,
+   (``flip_tucked``, off): a tucked crossing already takes the CPG's longest burst (a positive
+   weight adds nothing to it), so an extension asked of it is answered by the gates before it (the step before,
    longer: the take-off nearer), which the flip would shorten instead. On the tuning seeds at
    0.20 m the flip drove the step before to its shortest, the take-off ever farther.
 6. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
@@ -61,6 +61,34 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    for the first time starts from what the others learnt. With mixed heights on the tuning seeds
    it learnt faster at the same success in the last 50 trials (docs/improved.md); at one height
    the other rows are gated only when the height is misread.
+
+8. **An earlier gate keeps its branch** (``commit_earlier_s``, ``commit_flip``). Between two
+   branches of an earlier step (longer: the take-off nearer, a crossing; shorter: one more step
+   before it) lies a gap of take-offs from which no swing clears the block (about -0.38 to
+   -0.33 m at 0.08 m with the tucked swing). A failure there asks "extension" when the crossing
+   came down on top and "placement" when the short step left the foot at the face: both asks
+   are right for the step before, and the paper's rule, applying each in turn, holds its weight
+   in the gap. So a traced weight already ``commit_earlier_s`` from 0, outside the judged gate's
+   neighbourhood (the spread's reach), moves further along its own sign whatever the reflex
+   asks; with ``commit_flip``, one at ``flip_at`` of its bound and gated in the last few steps
+   (its own trace at least 0.5) turns to the other branch at once, its weight negated: that
+   branch, taken in full, still failed. On the tuning seeds 70-99 three seeds sat with the step
+   before at the short bound, the take-off in the gap, until the end (docs/improved.md, "Round 8").
+   Only in the contexts that start tucked (rule 9) when some do: the tall contexts' learnt swings
+   are not the tucked crossing's two branches, and there it cost them most.
+9. **The low obstacles start tucked** (``tucked_contexts``, ``tucked_range_m``). At 0.08 m the
+   fully tucked swing clears the block from take-offs over 28.5 cm against the half-sine's 12-15
+   cm (docs/leg_limits.md), wider than the stride's own range (about 0.31-0.46 m), so from any
+   footfall one step reaches it. The height contexts below ``tucked_contexts`` start at
+   ``lift_max`` and lift only within ``tucked_range_m`` (0.28 m of gated range, a cell edge:
+   the take-off about -0.36 m, the tucked crossing's far edge); beyond it a step is a step. For
+   taller obstacles the window's far edge moves in (-0.21 m at 0.20 m) and one range does not
+   fit them all: those contexts start from the hardwired lift and learn it (rule 6), as before.
+   Credit is shared (rule 7) only between contexts of one kind, tucked or not: the two kinds
+   learn different step maps.
+   ``learn_lift_range`` (off) was tried instead, each context's range shrinking below a tucked
+   swing that came down on top: with mixed heights it shrank the tall contexts' ranges to
+   nothing (docs/improved.md, "Round 8").
 
 Two settings of round 4 are there to be tried, and off by default: ``flip_gain`` (a reflex
 flipped by rule 5 moves the weights by that many learning steps, so a saturated gate reaches the
@@ -128,6 +156,20 @@ class ImprovedConfig:
                                     "within this many cells (0: off; round 7, docs/improved.md)")
     fade_gated_only: bool = setting(False, doc="the neighbours' credit fades (spread_fade) only for cells "
                                     "gated before: one never met keeps its full share (round 7)")
+    tucked_contexts: int = setting(2, "contexts", 0, 64,
+                                   "height contexts 0..N-1 (the lowest obstacles) start fully tucked (at lift_max) "
+                                   "and lift within tucked_range_m (0: none; round 8, docs/improved.md)")
+    tucked_range_m: tuple[float, ...] = setting((0.28, 0.28, 0.24, 0.12), "m", 0.0, 3.0,
+                                                "per context, the gated range below which a context that starts "
+                                                "tucked lifts (the last for any context beyond them)", items=(1, 64))
+    learn_lift_range: bool = setting(False, doc="each context's lift range starts at lift_range_m and shrinks "
+                                     "below the gated range of a tucked swing whose foot came down on top of "
+                                     "the block (round 8, docs/improved.md)")
+    commit_earlier_s: float = setting(0.1, "s", 0.0, 2.0,
+                                      "a traced weight this far from 0, outside the judged gate's neighbourhood, "
+                                      "moves further along its own sign whatever the reflex asks (0: off; round 8)")
+    commit_flip: bool = setting(True, doc="with commit_earlier_s, such a weight at flip_at of its bound, "
+                                "gated in the last few steps, turns to the other branch (its negative) at once")
     learning: bool = setting(True, doc="false freezes the weights and the lifts")
 
     def __post_init__(self) -> None:
@@ -166,12 +208,22 @@ class ImprovedPremotor:
         self.weights = np.zeros((n_contexts, n_cells))
         self.trained = np.zeros((n_contexts, n_cells))  # the trace each synapse was trained with so far
         self.lifts = np.full(n_contexts, config.lift_amplitude)
+        tucked = min(config.tucked_contexts, n_contexts)
+        self.lifts[:tucked] = config.lift_max
+        # rows that start tucked and rows that do not learn different step maps: credit is shared,
+        # and committed (rule 8), only within a kind
+        self._tucked_rows = np.arange(n_contexts) < tucked
         self.lift_raises = 0
         self.flips = 0
         self.reflexes = 0  # stride reflexes learnt from
         self.too_close = 0  # reflexes learnt as placement because the crossing's gate saw nothing
         self._gates: deque[tuple[int | None, int | None]] = deque(maxlen=3)  # the last three gates' (cell, row)
         self._tucks: deque[float] = deque(maxlen=3)  # and how tucked each one's swing was (0..1)
+        self._lifted: deque[tuple[int, float] | None] = deque(maxlen=3)  # and (row, gated range) if it lifted
+        self.lift_ranges = np.full(n_contexts, config.lift_range_m)  # per context
+        for k in range(tucked):
+            self.lift_ranges[k] = config.tucked_range_m[min(k, len(config.tucked_range_m) - 1)]
+        self.range_shrinks = 0
         self.memory = GatedMemory(config.stm_tau_s)
         self.traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)
         self.own_traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)  # gated cells only
@@ -180,7 +232,7 @@ class ImprovedPremotor:
         self.filled = 0  # cells whose first weight came from their neighbours (fill_new_cells)
         self.context: int | None = None  # the row of the cell held in STM
         self._lift_row: int | None = None  # the row whose lift the current step cycle uses
-        reach = int(math.ceil(3.0 * config.spread_cells))
+        reach = self._reach = int(math.ceil(3.0 * config.spread_cells))
         self._spread = [(k, math.exp(-k * k / (2.0 * config.spread_cells ** 2))) for k in range(-reach, reach + 1)] \
             if config.spread_cells > 0.0 else [(0, 1.0)]
 
@@ -198,6 +250,7 @@ class ImprovedPremotor:
         self.context = row if cell is not None else None
         self._gates.append((cell, self.context))
         self._tucks.append(0.0)  # lift_amplitude, called after this, says how tucked
+        self._lifted.append(None)  # and whether it lifted
         if cell is None:
             return
         if self.visits[row, cell] == 0 and self.config.fill_new_cells > 0.0 and self.config.learning:
@@ -218,7 +271,7 @@ class ImprovedPremotor:
                 share = self.config.context_share
                 if share > 0.0:  # the other heights' rows: the same decision, a different obstacle
                     for other in range(self.n_contexts):
-                        if other != row:
+                        if other != row and self._tucked_rows[other] == self._tucked_rows[row]:
                             taken = share * amount / (1.0 + self.own_trained[other, neighbour] / settle)
                             self.traces.activate(other * self.n_cells + neighbour, now_s, taken)
 
@@ -292,7 +345,23 @@ class ImprovedPremotor:
         if c.spread_keeps_branch:  # a cell on the other branch learns from its own gates only
             own = self.own_traces.at(now_s).reshape(self.weights.shape)
             traces = np.where(self.weights * sign < 0.0, own, traces)  # (own <= traces everywhere)
-        self.weights += (sign * gain) * rate * traces
+        change = (sign * gain) * rate * traces
+        if (c.commit_earlier_s > 0.0 and cell is not None and row is not None
+                and (c.tucked_contexts == 0 or self._tucked_rows[row])):
+            # the gates before the judged one: either branch of an earlier step moves the take-off
+            # out of the gap between them, so a weight already on one is not pulled back to the gap
+            committed = np.abs(self.weights) >= c.commit_earlier_s
+            committed[:, max(0, cell - self._reach):cell + self._reach + 1] = False
+            committed[self._tucked_rows != self._tucked_rows[row]] = False
+            change = np.where(committed, np.sign(self.weights) * gain * rate * traces, change)
+            if c.commit_flip:
+                # a branch taken in full that still failed: the other branch, at once
+                own = self.own_traces.at(now_s).reshape(self.weights.shape)
+                stuck = committed & (np.abs(self.weights) >= c.flip_at * c.weight_limit_s) & (own >= 0.5)
+                if stuck.any():
+                    change = np.where(stuck, -2.0 * self.weights, change)
+                    self.flips += int(np.count_nonzero(stuck))
+        self.weights += change
         np.clip(self.weights, -c.weight_limit_s, c.weight_limit_s, out=self.weights)
         self.trained += traces
         self.reflexes += 1
@@ -301,11 +370,14 @@ class ImprovedPremotor:
     # -- the lift --------------------------------------------------------------------------------
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
         self._extra_s = 0.0
-        if gated_range_m is None or not gated_range_m < self.config.lift_range_m:
+        row = self._row(context)
+        if gated_range_m is None or not gated_range_m < self.lift_ranges[row]:
             self._lift_row = None
             return 1.0
-        self._lift_row = self._row(context)
-        amplitude = float(self.lifts[self._lift_row])
+        self._lift_row = row
+        if self._lifted:
+            self._lifted[-1] = (row, gated_range_m)
+        amplitude = float(self.lifts[row])
         if self._tuck is not None:
             fraction = self._tuck(amplitude)
             self._extra_s = fraction * self._tucked_extra_s
@@ -326,6 +398,15 @@ class ImprovedPremotor:
         landing = not reflex.swing and (c.landing_gate or (c.landing_on_top and reflex.cause == "foot_on_top"))
         back = 2 if landing else 1
         gate = self._gate(back)
+        lifted = self._lifted[-back] if len(self._lifted) >= back else None
+        if (c.learning and c.learn_lift_range and reflex.cause == "foot_on_top" and lifted is not None
+                and self._tuck_of(back) > 0.0):
+            # a tucked swing (the longest) still came down on top: its take-off was beyond the
+            # reach of a crossing, so this context lifts only from nearer than that gate's range
+            row, gated_range_m = lifted
+            if gated_range_m < self.lift_ranges[row]:
+                self.lift_ranges[row] = gated_range_m
+                self.range_shrinks += 1
         if gate[0] is None and self._gate(back + 1)[0] is not None:
             kind = "placement"
             self.too_close += 1

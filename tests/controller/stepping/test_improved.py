@@ -15,7 +15,8 @@ BASE = 0.3
 
 
 def premotor(**config) -> ImprovedPremotor:
-    return ImprovedPremotor(4, 28, BASE, ImprovedConfig(**config))
+    """The rules before round 8 alone unless asked: no context starts tucked, no commitment."""
+    return ImprovedPremotor(4, 28, BASE, ImprovedConfig(**{"tucked_contexts": 0, "commit_earlier_s": 0.0, **config}))
 
 
 def reflex(kind: str, t_s: float, cause: str = "foot_on_top", swing: bool = True, phase: float = 0.9) -> Reflex:
@@ -283,3 +284,115 @@ def test_with_fade_gated_only_a_neighbour_never_gated_keeps_its_full_share():
     q.on_reflex("extension", 100.0)
     q.on_step_onset(200.0, 10, context=0)
     assert q.traces.at(200.0)[12] == pytest.approx(0.5 * math.exp(-2.0), rel=1e-3)
+
+
+def tuck_premotor(**config) -> ImprovedPremotor:
+    settings = {"spread_cells": 0.0, "lift_amplitude": 3.44, "lift_max": 3.44, "lift_range_m": 0.4,
+                "tucked_contexts": 0, "commit_earlier_s": 0.0, **config}
+    return ImprovedPremotor(4, 28, BASE, ImprovedConfig(**settings),
+                            tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3)
+
+
+def test_a_tucked_swing_landing_on_top_shrinks_that_contexts_lift_range_to_its_gate():
+    """learn_lift_range: the longest (tucked) swing came down on top, so its take-off was beyond
+    a crossing's reach; that context lifts from nearer than the gate's range from now on."""
+    p = tuck_premotor(learn_lift_range=True)
+    p.on_step_onset(0.0, 7, context=1)
+    assert p.lift_amplitude(0.30, 1) == pytest.approx(3.44)  # within 0.4 m: the tucked lift
+    p.on_contact_reflex(reflex("extension", 0.9, cause="foot_on_top", swing=True, phase=0.95))
+    assert p.lift_ranges[1] == pytest.approx(0.30) and p.range_shrinks == 1
+    assert list(p.lift_ranges[[0, 2, 3]]) == [0.4, 0.4, 0.4]  # the other heights keep theirs
+    p.on_step_onset(1.0, 7, context=1)
+    assert p.lift_amplitude(0.305, 1) == 1.0 and p.burst_s(1.0) == pytest.approx(BASE + p.weights[1, 7])
+    p.on_step_onset(2.0, 6, context=1)
+    assert p.lift_amplitude(0.29, 1) == pytest.approx(3.44)
+    # a landing in stance is judged by the gate whose swing landed it (rule 3): that gate's range
+    p.on_step_onset(3.0, None, context=None)
+    p.lift_amplitude(None, None)
+    p.on_contact_reflex(reflex("extension", 3.05, cause="foot_on_top", swing=False, phase=0.05))
+    assert p.lift_ranges[1] == pytest.approx(0.29) and p.range_shrinks == 2
+
+
+def test_the_lift_range_stays_when_off_untucked_or_not_on_top():
+    cases = ((dict(), 3.44, "foot_on_top"),  # learn_lift_range off (the default)
+             (dict(learn_lift_range=True), 2.5, "foot_on_top"),  # a half-sine swing: not the longest
+             (dict(learn_lift_range=True), 3.44, "shin"))  # struck, not landed on top
+    for config, lift, cause in cases:
+        p = tuck_premotor(**config)
+        p.lifts[:] = lift
+        p.on_step_onset(0.0, 7, context=1)
+        p.lift_amplitude(0.30, 1)
+        p.on_contact_reflex(reflex("extension", 0.9, cause=cause, swing=True, phase=0.95))
+        assert list(p.lift_ranges) == [0.4] * 4 and p.range_shrinks == 0, (config, lift, cause)
+
+
+def test_commit_earlier_moves_an_earlier_gates_weight_along_its_own_sign():
+    """commit_earlier_s: either branch of the step before the judged one moves the take-off out of
+    the gap between the branches, so a weight already on one keeps going; the judged gate's
+    neighbourhood, and weights nearer 0 than the setting, learn from the reflex as before."""
+    def run(commit: float) -> ImprovedPremotor:
+        p = premotor(spread_cells=1.0, context_share=0.0, learning_rate_s=0.1, commit_earlier_s=commit)
+        p.weights[0, 15], p.weights[0, 20] = -0.2, -0.05
+        p.weights[0, 7] = -0.2  # beside the judged gate (6): within the spread's reach
+        p.on_step_onset(0.0, 20, context=0)
+        p.on_step_onset(0.7, 15, context=0)
+        p.on_step_onset(1.4, 6, context=0)
+        p.on_reflex("extension", 1.9)
+        return p
+
+    before = {(0, 15): -0.2, (0, 20): -0.05, (0, 7): -0.2, (0, 6): 0.0}
+    off, on = run(0.0), run(0.1)
+    for cell in before:
+        assert off.weights[cell] > before[cell]  # the paper's rule: every traced weight lengthens
+    assert on.weights[0, 15] < -0.2  # committed to the short branch: shorter still
+    assert on.weights[0, 20] > -0.05  # too near 0 to count as a branch: as the reflex asks
+    assert on.weights[0, 7] > -0.2 and on.weights[0, 6] == pytest.approx(off.weights[0, 6])
+
+
+def test_commit_flip_turns_a_committed_weight_at_its_bound_to_the_other_branch():
+    """commit_flip: an earlier gate whose branch was taken in full (at flip_at of the bound) and
+    still failed takes the other branch at once; a weight gated too long ago is left alone."""
+    def run(flip: bool, gated_at_s: float) -> ImprovedPremotor:
+        p = premotor(spread_cells=0.0, context_share=0.0, learning_rate_s=0.1, commit_earlier_s=0.1,
+                     commit_flip=flip, flip_at=0.95, weight_limit_s=0.5)
+        p.weights[0, 19] = 0.5
+        p.on_step_onset(gated_at_s, 19, context=0)
+        p.on_step_onset(10.0, 7, context=0)
+        p.on_reflex("extension", 10.6)
+        return p
+
+    assert run(False, 9.3).weights[0, 19] == pytest.approx(0.5)  # committed, at the bound: stays
+    flipped = run(True, 9.3)
+    assert flipped.weights[0, 19] == pytest.approx(-0.5) and flipped.flips == 1
+    assert run(True, 0.0).weights[0, 19] == pytest.approx(0.5)  # gated 10 s before: not this failure's step
+
+
+def test_the_low_contexts_start_tucked_and_share_credit_only_with_their_kind():
+    """tucked_contexts: contexts below it start at lift_max and lift within their tucked range;
+    credit is shared (context_share), and committed (rule 8), only between rows of one kind."""
+    p = tuck_premotor(tucked_contexts=2, lift_amplitude=1.9, context_share=0.5)
+    assert list(p.lifts) == [3.44, 3.44, 1.9, 1.9]
+    assert list(p.lift_ranges) == pytest.approx([0.28, 0.28, 0.4, 0.4])
+    p.on_step_onset(0.0, 7, context=1)
+    assert p.lift_amplitude(0.29, 1) == 1.0 and p.lift_amplitude(0.27, 1) == pytest.approx(3.44)
+    traces = p.traces.at(0.0).reshape(4, 28)
+    assert traces[1, 7] == 1.0 and traces[0, 7] > 0.0 and traces[2, 7] == 0.0 and traces[3, 7] == 0.0
+    p.on_step_onset(100.0, 7, context=3)  # the first gate's traces have decayed away
+    traces = p.traces.at(100.0).reshape(4, 28)
+    assert traces[2, 7] > 0.0 and traces[0, 7] < 0.01  # a tall context shares with the other tall one
+    untucked = tuck_premotor(tucked_contexts=0, lift_amplitude=1.9)
+    assert list(untucked.lifts) == [1.9] * 4 and list(untucked.lift_ranges) == [0.4] * 4
+
+
+def test_commit_is_for_the_tucked_kind_when_some_contexts_start_tucked():
+    def run(row: int) -> float:
+        p = premotor(spread_cells=0.0, context_share=0.0, learning_rate_s=0.1, commit_earlier_s=0.1,
+                     tucked_contexts=2, lift_max=3.44)
+        p.weights[row, 15] = -0.2
+        p.on_step_onset(0.0, 15, context=row)
+        p.on_step_onset(0.7, 6, context=row)
+        p.on_reflex("extension", 1.2)
+        return float(p.weights[row, 15])
+
+    assert run(1) < -0.2  # a tucked context: committed to the short branch
+    assert run(3) > -0.2  # a context that learns its lift: the reflex's ask, as before round 8
