@@ -76,12 +76,16 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    before at the short bound, the take-off in the gap, until the end (docs/improved.md, "Round 8").
    Only in the contexts that start tucked (rule 9) when some do: the tall contexts' learnt swings
    are not the tucked crossing's two branches, and there it cost them most.
-9. **The low obstacles start tucked** (``tucked_contexts``, ``tucked_range_m``). At 0.08 m the
+9. **The low obstacles start tucked** (``tucked_contexts``, ``tucked_time_s``). At 0.08 m the
    fully tucked swing clears the block from take-offs over 28.5 cm against the half-sine's 12-15
    cm (docs/leg_limits.md), wider than the stride's own range (about 0.31-0.46 m), so from any
    footfall one step reaches it. The height contexts below ``tucked_contexts`` start at
-   ``lift_max`` and lift only within ``tucked_range_m`` (0.28 m of gated range, a cell edge:
-   the take-off about -0.36 m, the tucked crossing's far edge); beyond it a step is a step. For
+   ``lift_max`` and lift only within ``tucked_time_s`` of contact at the ground speed the
+   controller believes (0.56 s: 0.28 m of gated range at 0.5 m/s, a cell edge, the take-off
+   about -0.36 m, the tucked crossing's far edge); beyond it a step is a step. In time, not in
+   metres: at another rail speed the leg travels farther or less between the gate and the
+   footfall; on tuning seeds 44-55 at 0.6 and 0.4 m/s the range scaled with the speed did as well
+   as 0.28 m or better, pooled over both (docs/improved.md, "Round 8"). For
    taller obstacles the window's far edge moves in (-0.21 m at 0.20 m) and one range does not
    fit them all: those contexts start from the hardwired lift and learn it (rule 6), as before.
    Credit is shared (rule 7) only between contexts of one kind, tucked or not: the two kinds
@@ -158,10 +162,11 @@ class ImprovedConfig:
                                     "gated before: one never met keeps its full share (round 7)")
     tucked_contexts: int = setting(2, "contexts", 0, 64,
                                    "height contexts 0..N-1 (the lowest obstacles) start fully tucked (at lift_max) "
-                                   "and lift within tucked_range_m (0: none; round 8, docs/improved.md)")
-    tucked_range_m: tuple[float, ...] = setting((0.28, 0.28, 0.24, 0.12), "m", 0.0, 3.0,
-                                                "per context, the gated range below which a context that starts "
-                                                "tucked lifts (the last for any context beyond them)", items=(1, 64))
+                                   "and lift within tucked_time_s of contact (0: none; round 8, docs/improved.md)")
+    tucked_time_s: tuple[float, ...] = setting((0.56, 0.56, 0.48, 0.24), "s", 0.0, 10.0,
+                                               "per context, the time to contact (gated range over the believed "
+                                               "ground speed) below which a context that starts tucked lifts "
+                                               "(the last for any context beyond them)", items=(1, 64))
     learn_lift_range: bool = setting(False, doc="each context's lift range starts at lift_range_m and shrinks "
                                      "below the gated range of a tucked swing whose foot came down on top of "
                                      "the block (round 8, docs/improved.md)")
@@ -187,16 +192,20 @@ class ImprovedPremotor:
     ``n_cells``: the range encoder's cells; ``base_burst_s``: the burst with nothing gated [s];
     ``tuck``: the gait's tuck fraction (0..1) of a lift amplitude
     (:func:`controller.motion.gait.tuck_fraction`), default None: the swing never tucks;
-    ``tucked_extra_s``: how much longer a fully tucked swing's burst is [s], default 0.
+    ``tucked_extra_s``: how much longer a fully tucked swing's burst is [s], default 0;
+    ``ground_speed_m_s``: the ground speed the controller believes [m/s], default 0.5 (a context
+    that starts tucked lifts within ``tucked_time_s`` of contact at it).
     Attributes read by experiments: ``weights`` (n_contexts x n_cells) [s], ``lifts`` (one
     amplitude per context), ``lift_raises`` (how many reflexes raised a lift).
     """
 
     def __init__(self, n_contexts: int, n_cells: int, base_burst_s: float,
                  config: ImprovedConfig = ImprovedConfig(), tuck: Callable[[float], float] | None = None,
-                 tucked_extra_s: float = 0.0) -> None:
+                 tucked_extra_s: float = 0.0, ground_speed_m_s: float = 0.5) -> None:
         if not (isinstance(n_contexts, int) and n_contexts >= 1 and isinstance(n_cells, int) and n_cells >= 1):
             raise ValueError(f"n_contexts and n_cells must be positive integers, got {n_contexts!r}, {n_cells!r}")
+        if not (math.isfinite(ground_speed_m_s) and ground_speed_m_s > 0.0):
+            raise ValueError(f"ground_speed_m_s must be a finite speed > 0 m/s, got {ground_speed_m_s!r}")
         if not (math.isfinite(tucked_extra_s) and tucked_extra_s >= 0.0):
             raise ValueError(f"tucked_extra_s must be a finite burst length >= 0 s, got {tucked_extra_s!r}")
         self.config = config
@@ -222,7 +231,7 @@ class ImprovedPremotor:
         self._lifted: deque[tuple[int, float] | None] = deque(maxlen=3)  # and (row, gated range) if it lifted
         self.lift_ranges = np.full(n_contexts, config.lift_range_m)  # per context
         for k in range(tucked):
-            self.lift_ranges[k] = config.tucked_range_m[min(k, len(config.tucked_range_m) - 1)]
+            self.lift_ranges[k] = config.tucked_time_s[min(k, len(config.tucked_time_s) - 1)] * ground_speed_m_s
         self.range_shrinks = 0
         self.memory = GatedMemory(config.stm_tau_s)
         self.traces = SynapticTraces(n_contexts * n_cells, config.trace_tau_s)

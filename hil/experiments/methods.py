@@ -72,7 +72,7 @@ def lift_max(controller: ControllerConfig) -> float:
 def build_improved(controller: ControllerConfig, learning: bool = True, **settings):
     """The improved learner for this controller: its lift settings from the controller's reflexes,
     its highest lift from the leg (:func:`lift_max`), the gait's tuck and the CPG's longest burst
-    for a tucked swing; ``settings``: other :class:`controller.stepping.improved.ImprovedConfig`
+    for a tucked swing, the ground speed the gait believes; ``settings``: other :class:`controller.stepping.improved.ImprovedConfig`
     settings (tuning)."""
     from functools import partial
 
@@ -84,7 +84,8 @@ def build_improved(controller: ControllerConfig, learning: bool = True, **settin
                                **settings})
     cpg = controller.cpg
     return ImprovedPremotor(controller.height.n_contexts, controller.encoder.n_cells, cpg.burst_s, config,
-                            tuck=partial(tuck_fraction, controller.gait), tucked_extra_s=cpg.burst_max_s - cpg.burst_s)
+                            tuck=partial(tuck_fraction, controller.gait), tucked_extra_s=cpg.burst_max_s - cpg.burst_s,
+                            ground_speed_m_s=controller.gait.ground_speed_m_s)
 
 
 def _improved(controller: ControllerConfig, learning: bool, seed: int, truth: Truth, height: Truth):

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import sys
 from collections import defaultdict
@@ -246,10 +247,13 @@ def main(argv: list[str] | None = None) -> int:
             print("  " + line)
         for h, ok in r["late_by_height"]:
             late[h].append(ok)
-    ttc = [r["trials_to_criterion"] if r["trials_to_criterion"] is not None else 10**6 for r in results]
+    ttc = [r["trials_to_criterion"] if r["trials_to_criterion"] is not None else math.inf for r in results]
+    never = sum(t == math.inf for t in ttc)
+    median = statistics.median_low(ttc) if never else statistics.median(ttc)  # a seed that never did sorts last
     n = len(results)
     changed = (f" controller {controller}" if controller else "") + (f" conditions {conditions}" if conditions else "")
-    print(f"SUMMARY {settings}{changed} trials to criterion median {statistics.median(ttc)}, mean success "
+    print(f"SUMMARY {settings}{changed} trials to criterion median "
+          f"{'never' if median == math.inf else median}{f' ({never} never)' if never else ''}, mean success "
           f"{statistics.mean(r['success'] for r in results):.3f}, no mistake after 100 on "
           f"{sum(r['mistakes_after_100'] == 0 for r in results)}/{n}, after 50 on "
           f"{sum(r['mistakes_after_50'] == 0 for r in results)}/{n}, contact misses "

@@ -396,3 +396,15 @@ def test_commit_is_for_the_tucked_kind_when_some_contexts_start_tucked():
 
     assert run(1) < -0.2  # a tucked context: committed to the short branch
     assert run(3) > -0.2  # a context that learns its lift: the reflex's ask, as before round 8
+
+
+def test_a_tucked_context_lifts_within_a_time_to_contact_at_the_believed_speed():
+    """tucked_time_s is a time: at 0.6 m/s the tucked contexts lift from 0.336 m, at 0.5 from 0.28."""
+    def ranges(speed: float) -> list[float]:
+        p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44), ground_speed_m_s=speed)
+        return p.lift_ranges.tolist()
+
+    assert ranges(0.5) == [0.28, 0.28, 0.4, 0.4]  # exactly: the default records are round 8's first ones
+    assert ranges(0.6) == pytest.approx([0.336, 0.336, 0.4, 0.4])
+    with pytest.raises(ValueError, match="ground_speed_m_s"):
+        ImprovedPremotor(4, 28, BASE, ground_speed_m_s=0.0)
