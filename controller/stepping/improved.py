@@ -38,8 +38,8 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    weight asks the longest swing) asks the opposite: that swing could not be longer, so the next
    approach takes an extra, shorter step. Not for a gate whose swing was tucked
    (``flip_tucked``, off): a tucked crossing already takes the CPG's longest burst (a positive
-   weight adds nothing to it), so an extension asked of it is answered by the gates before it (the step before,
-   longer: the take-off nearer), which the flip would shorten instead. On the tuning seeds at
+   weight adds nothing to it), so an extension asked of it is answered by the gates before it
+   (the step before, longer: the take-off nearer), which the flip would shorten instead. On the tuning seeds at
    0.20 m the flip drove the step before to its shortest, the take-off ever farther.
 6. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
    the step height whatever the obstacle. Here each context has its own amplitude, starting at
@@ -85,9 +85,9 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    about -0.36 m, the tucked crossing's far edge); beyond it a step is a step. In time, not in
    metres: at another rail speed the leg travels farther or less between the gate and the
    footfall; on tuning seeds 44-55 at 0.6 and 0.4 m/s the range scaled with the speed did as well
-   as 0.28 m or better, pooled over both (docs/improved.md, "Round 8"). For
-   taller obstacles the window's far edge moves in (-0.21 m at 0.20 m) and one range does not
-   fit them all: those contexts start from the hardwired lift and learn it (rule 6), as before.
+   as 0.28 m or better, pooled over both (docs/improved.md, "Round 8"). For taller obstacles the
+   window's far edge moves in (-0.21 m at 0.20 m) and one range does not fit them all: those
+   contexts start from the hardwired lift and learn it (rule 6), as before.
    Credit is shared (rule 7) only between contexts of one kind, tucked or not: the two kinds
    learn different step maps.
    ``learn_lift_range`` (off) was tried instead, each context's range shrinking below a tucked
@@ -222,6 +222,9 @@ class ImprovedPremotor:
         # rows that start tucked and rows that do not learn different step maps: credit is shared,
         # and committed (rule 8), only within a kind
         self._tucked_rows = np.arange(n_contexts) < tucked
+        self._kin = [[other for other in range(n_contexts)  # the rows each row shares its credit with
+                      if other != row and self._tucked_rows[other] == self._tucked_rows[row]]
+                     for row in range(n_contexts)]
         self.lift_raises = 0
         self.flips = 0
         self.reflexes = 0  # stride reflexes learnt from
@@ -279,10 +282,9 @@ class ImprovedPremotor:
                 self.traces.activate(base + neighbour, now_s, amount)
                 share = self.config.context_share
                 if share > 0.0:  # the other heights' rows: the same decision, a different obstacle
-                    for other in range(self.n_contexts):
-                        if other != row and self._tucked_rows[other] == self._tucked_rows[row]:
-                            taken = share * amount / (1.0 + self.own_trained[other, neighbour] / settle)
-                            self.traces.activate(other * self.n_cells + neighbour, now_s, taken)
+                    for other in self._kin[row]:
+                        taken = share * amount / (1.0 + self.own_trained[other, neighbour] / settle)
+                        self.traces.activate(other * self.n_cells + neighbour, now_s, taken)
 
     def _fill(self, row: int, cell: int) -> None:
         """A cell met for the first time starts from what its neighbours met before it learnt:
@@ -336,6 +338,7 @@ class ImprovedPremotor:
         if not c.learning or c.learning_rate_s == 0.0:
             return
         traces = self.traces.at(now_s).reshape(self.weights.shape)
+        own = self.own_traces.at(now_s).reshape(self.weights.shape)  # the gated cells' own traces
         cell, row = gate
         gain = 1.0
         if c.flip_at <= 1.0 and cell is not None and row is not None and (c.flip_tucked or tucked == 0.0):
@@ -352,7 +355,6 @@ class ImprovedPremotor:
             1.0 + self.trained / c.settle_reflexes)
         sign = 1.0 if kind == "extension" else -1.0
         if c.spread_keeps_branch:  # a cell on the other branch learns from its own gates only
-            own = self.own_traces.at(now_s).reshape(self.weights.shape)
             traces = np.where(self.weights * sign < 0.0, own, traces)  # (own <= traces everywhere)
         change = (sign * gain) * rate * traces
         if (c.commit_earlier_s > 0.0 and cell is not None and row is not None
@@ -365,7 +367,6 @@ class ImprovedPremotor:
             change = np.where(committed, np.sign(self.weights) * gain * rate * traces, change)
             if c.commit_flip:
                 # a branch taken in full that still failed: the other branch, at once
-                own = self.own_traces.at(now_s).reshape(self.weights.shape)
                 stuck = committed & (np.abs(self.weights) >= c.flip_at * c.weight_limit_s) & (own >= 0.5)
                 if stuck.any():
                     change = np.where(stuck, -2.0 * self.weights, change)
@@ -374,7 +375,7 @@ class ImprovedPremotor:
         np.clip(self.weights, -c.weight_limit_s, c.weight_limit_s, out=self.weights)
         self.trained += traces
         self.reflexes += 1
-        self.own_trained += self.own_traces.at(now_s).reshape(self.weights.shape)
+        self.own_trained += own
 
     # -- the lift --------------------------------------------------------------------------------
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:

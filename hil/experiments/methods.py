@@ -72,8 +72,8 @@ def lift_max(controller: ControllerConfig) -> float:
 def build_improved(controller: ControllerConfig, learning: bool = True, **settings):
     """The improved learner for this controller: its lift settings from the controller's reflexes,
     its highest lift from the leg (:func:`lift_max`), the gait's tuck and the CPG's longest burst
-    for a tucked swing, the ground speed the gait believes; ``settings``: other :class:`controller.stepping.improved.ImprovedConfig`
-    settings (tuning)."""
+    for a tucked swing, the ground speed the gait believes; ``settings``: other
+    :class:`controller.stepping.improved.ImprovedConfig` settings (tuning)."""
     from functools import partial
 
     from controller.motion.gait import tuck_fraction
