@@ -128,6 +128,10 @@ class ControlLoop:
         self._premotor_lift: Callable[[float | None, int | None], float] | None = getattr(
             self.premotor, "lift_amplitude", None)
         self._premotor_reflex: Callable[[Reflex], None] | None = getattr(self.premotor, "on_contact_reflex", None)
+        # a premotor that wants the ground speed its range sensor sees gets, at each gate with a
+        # target in view, the filter's closing speed and its variance
+        self._premotor_speed: Callable[[float, float], None] | None = getattr(
+            self.premotor, "observe_closing_speed", None)
         self._range_samples_seen = 0
         self.trajectory = FootTrajectory(config.gait, config.cpg, config.geometry)
         self.muscles = {a.name: LowPass(config.gait.muscle_tau_s) for a in self.axes}
@@ -416,6 +420,10 @@ class ControlLoop:
         context = self.height.context
         self.premotor.on_step_onset(now_s, cell, context=context)
         amplitude = lift_amplitude(self.config.reflexes, gated)
+        if self._premotor_speed is not None and gated is not None:
+            rate, variance = self.range_filter.rate_m_s, self.range_filter.rate_var_m2_s2
+            if rate is not None and variance is not None:
+                self._premotor_speed(-rate, variance)
         if self._premotor_lift is not None:
             asked = self._premotor_lift(gated, context)
             # the CPG's amplitude stays within the reflex setting's declared range whatever a

@@ -138,4 +138,11 @@ class RangeFilter:
 
     @property
     def rate_m_s(self) -> float | None:
+        """The filtered range rate [m/s] (negative: closing), or None when no target is in view."""
         return float(self.kf.x[1, 0]) if self.active else None
+
+    @property
+    def rate_var_m2_s2(self) -> float | None:
+        """The variance of :attr:`rate_m_s` [m^2/s^2] (1 when a target was just acquired), or None
+        when no target is in view."""
+        return float(self.kf.P[1, 1]) if self.active else None

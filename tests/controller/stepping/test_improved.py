@@ -178,7 +178,8 @@ def test_the_other_branch_is_asked_of_the_landing_gate_at_its_bound():
 def test_a_tucked_lift_lengthens_that_cycles_burst_by_the_tuck():
     """A lift the gait tucks takes the longer burst of a high step, by the tuck fraction; the next
     gate that does not lift ends it."""
-    p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(lift_amplitude=1.9, lift_max=3.44, lift_range_m=0.4),
+    p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(lift_amplitude=1.9, lift_max=3.44, lift_range_m=0.4,
+                                                     range_follows_tuck=False),
                          tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3)
     p.on_step_onset(0.0, 5, context=3)
     assert p.lift_amplitude(0.3, 3) == 1.9 and p.burst_s(0.0) == pytest.approx(BASE)  # not tucked: as before
@@ -288,7 +289,7 @@ def test_with_fade_gated_only_a_neighbour_never_gated_keeps_its_full_share():
 
 def tuck_premotor(**config) -> ImprovedPremotor:
     settings = {"spread_cells": 0.0, "lift_amplitude": 3.44, "lift_max": 3.44, "lift_range_m": 0.4,
-                "tucked_contexts": 0, "commit_earlier_s": 0.0, **config}
+                "tucked_contexts": 0, "commit_earlier_s": 0.0, "range_follows_tuck": False, **config}
     return ImprovedPremotor(4, 28, BASE, ImprovedConfig(**settings),
                             tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3)
 
@@ -408,3 +409,56 @@ def test_a_tucked_context_lifts_within_a_time_to_contact_at_the_believed_speed()
     assert ranges(0.6) == pytest.approx([0.336, 0.336, 0.4, 0.4])
     with pytest.raises(ValueError, match="ground_speed_m_s"):
         ImprovedPremotor(4, 28, BASE, ground_speed_m_s=0.0)
+
+
+def test_the_ground_speed_is_the_belief_fused_with_each_measured_closing_speed():
+    """Each closing speed is weighted by its inverse variance, the belief by 1 / sd^2; the
+    tucked contexts' range is their time to contact at the fused speed, the others' stays in
+    metres."""
+    p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44, speed_belief_sd_m_s=0.05))
+    p.observe_closing_speed(0.6, 0.05 ** 2)  # as sure as the belief: halfway
+    assert p.ground_speed_m_s == pytest.approx(0.55)
+    for _ in range(400):
+        p.observe_closing_speed(0.55, 0.01 ** 2)
+    assert p.ground_speed_m_s == pytest.approx(0.55, abs=1e-9)
+
+    def lifts(range_m: float, context: int) -> bool:
+        return p.lift_amplitude(range_m, context) > 1.0
+
+    assert lifts(0.30, 0) and not lifts(0.31, 0)  # 0.56 s at 0.55 m/s: 0.308 m
+    assert lifts(0.39, 3) and not lifts(0.41, 3)  # a context that learns its lift: 0.40 m, as set
+    for bad in ((math.nan, 1e-4), (0.5, 0.0), (0.5, math.inf), (math.inf, 1e-4)):
+        p.observe_closing_speed(*bad)  # ignored
+    assert p.ground_speed_m_s == pytest.approx(0.55, abs=1e-9)
+
+
+def test_with_no_doubt_of_the_belief_no_measurement_moves_it():
+    p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44, speed_belief_sd_m_s=0.0))
+    p.observe_closing_speed(0.6, 1e-6)
+    assert p.ground_speed_m_s == 0.5
+    assert p.lift_amplitude(0.279, 0) > 1.0 and p.lift_amplitude(0.281, 0) == 1.0
+
+
+def test_a_context_that_learns_its_lift_lifts_nearer_as_its_swing_tucks():
+    """range_follows_tuck: the range moves from lift_range_m (0.40 m) to the context's
+    tucked_time_s of contact (here 0.4 s at 0.5 m/s: 0.20 m) by the tuck fraction of its lift."""
+    def tuck(amplitude: float) -> float:
+        return min(1.0, max(0.0, (amplitude - 3.0) / 0.4))
+
+    config = ImprovedConfig(tucked_contexts=2, lift_max=3.4, tucked_time_s=(0.56, 0.56, 0.48, 0.4),
+                            range_follows_tuck=True)
+    p = ImprovedPremotor(4, 28, BASE, config, tuck=tuck)
+
+    def lifts(range_m: float) -> bool:
+        return p.lift_amplitude(range_m, 3) > 1.0
+
+    assert lifts(0.39) and not lifts(0.41)  # the hardwired lift (1.9): no tuck, 0.40 m
+    p.lifts[3] = 3.2  # half tucked: halfway, 0.30 m
+    assert lifts(0.29) and not lifts(0.31)
+    p.lifts[3] = 3.4  # fully tucked: 0.4 s of contact
+    assert lifts(0.19) and not lifts(0.21)
+    assert p.lift_amplitude(0.27, 0) > 1.0 and p.lift_amplitude(0.29, 0) == 1.0  # a tucked context: 0.28 m
+    off = ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.4, range_follows_tuck=False),
+                           tuck=tuck)
+    off.lifts[3] = 3.4
+    assert off.lift_amplitude(0.39, 3) > 1.0  # off: 0.40 m whatever the tuck

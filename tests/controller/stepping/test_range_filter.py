@@ -32,6 +32,7 @@ def test_filter_beats_the_raw_noise_and_tracks_the_closing_speed():
         d = approach(f, np.random.default_rng(seed))
         errors.append(f.estimate_m - d)
         assert f.rate_m_s == pytest.approx(-0.5, abs=0.08)
+        assert 0.0 < f.rate_var_m2_s2 < 0.03 ** 2  # from 1 at acquisition: the rate is known
     rms = math.sqrt(sum(e * e for e in errors) / len(errors))
     assert rms < 0.02 / 2, f"filtered rms {rms:.4f} m is not better than half the raw 0.02 m"
     assert rng is not None
@@ -111,8 +112,9 @@ def test_estimate_is_withdrawn_when_the_target_leaves_view():
     f.reading(1.0, True, 0.0)
     f.predict(0.2)
     assert f.estimate_m is not None
+    assert f.rate_var_m2_s2 is not None
     f.predict(0.3)
-    assert f.estimate_m is None
+    assert f.estimate_m is None and f.rate_m_s is None and f.rate_var_m2_s2 is None
 
 
 def test_encoder_cells_do_not_overlap_and_cover_the_range():

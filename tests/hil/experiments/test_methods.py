@@ -69,3 +69,24 @@ def test_parsing_method_names_imports_no_simulation():
             "print(heavy); sys.exit(1 if heavy else 0)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_the_improved_learner_hears_the_ground_speed_its_range_filter_measures():
+    """Through the whole stack (plant, bus, loop): with the plant 10% faster than the controller
+    believes, the closing speeds the loop hands the learner at its gates bring its ground speed
+    to the plant's within the first trial, and the tucked contexts' range with it."""
+    from hil.experiments.learn import LearningRun
+
+    config = LearnConfig(seed=3, trials=1, method="improved", rail_speed_m_s=0.55, believed_rail_speed_m_s=0.5)
+    premotor = methods.build_improved(config.controller)
+    assert premotor.ground_speed_m_s == 0.5
+    heard: list[float] = []
+    observe = premotor.observe_closing_speed
+    premotor.observe_closing_speed = lambda v, var: (heard.append(v), observe(v, var))[1]
+    run = LearningRun(config, premotor=premotor)
+    try:
+        run.run()
+    finally:
+        run.close()
+    assert len(heard) >= 3 and all(abs(v - 0.55) < 0.05 for v in heard)
+    assert premotor.ground_speed_m_s == pytest.approx(0.55, abs=0.005)
