@@ -211,6 +211,19 @@ class ImprovedConfig:
                              f"got {self.lift_amplitude!r}")
 
 
+@dataclass(slots=True)
+class _Gate:
+    """One step onset's gate, as the reflexes after it judge it (rules 3, 4, 5, 8 and the lift)."""
+
+    cell: int | None  # the gated cell; None: nothing in the encoder's reach
+    row: int | None  # its context row; None with no cell
+    tuck: float = 0.0  # how tucked the swing its step cycle drove was (0..1), set by lift_amplitude
+    lifted: tuple[int, float] | None = None  # (row, gated range [m]) if that cycle lifted
+
+
+_NO_GATE = _Gate(None, None)  # before the first onset
+
+
 class ImprovedPremotor:
     """Sets the CPG's burst length and lift from gated (context, cell) memory; learns both from
     reflexes (the :class:`controller.stepping.premotor.LiftingPremotor` protocol).
@@ -256,12 +269,12 @@ class ImprovedPremotor:
         self.flips = 0
         self.reflexes = 0  # stride reflexes learnt from
         self.too_close = 0  # reflexes learnt as placement because the crossing's gate saw nothing
-        self._gates: deque[tuple[int | None, int | None]] = deque(maxlen=3)  # the last three gates' (cell, row)
-        self._tucks: deque[float] = deque(maxlen=3)  # and how tucked each one's swing was (0..1)
-        self._lifted: deque[tuple[int, float] | None] = deque(maxlen=3)  # and (row, gated range) if it lifted
-        self.lift_ranges = np.full(n_contexts, config.lift_range_m)  # per context
-        for k in range(tucked):
-            self.lift_ranges[k] = config.tucked_time_s[min(k, len(config.tucked_time_s) - 1)] * ground_speed_m_s
+        self._gates: deque[_Gate] = deque(maxlen=3)  # the last three gates, the newest last
+        times = config.tucked_time_s  # the last for any context beyond them
+        # each context's tucked_time_s of contact as gated range at the believed speed (rules 9, 11)
+        self._tucked_ranges_m = np.array([times[min(k, len(times) - 1)] for k in range(n_contexts)]) * ground_speed_m_s
+        self.lift_ranges = np.full(n_contexts, config.lift_range_m)  # per context, at the believed speed
+        self.lift_ranges[:tucked] = self._tucked_ranges_m[:tucked]
         self.range_shrinks = 0
         self._believed_m_s = ground_speed_m_s
         self.ground_speed_m_s = ground_speed_m_s  # the belief, fused with each closing speed observed
@@ -291,9 +304,7 @@ class ImprovedPremotor:
         row = self._row(context)
         self.memory.gate(cell, now_s)
         self.context = row if cell is not None else None
-        self._gates.append((cell, self.context))
-        self._tucks.append(0.0)  # lift_amplitude, called after this, says how tucked
-        self._lifted.append(None)  # and whether it lifted
+        self._gates.append(_Gate(cell, self.context))  # lift_amplitude, called after this, fills in the rest
         if cell is None:
             return
         if self.visits[row, cell] == 0 and self.config.fill_new_cells > 0.0 and self.config.learning:
@@ -352,17 +363,13 @@ class ImprovedPremotor:
     def on_reflex(self, kind: str, now_s: float) -> None:
         """The stride part of a reflex (extension: longer strides, placement: shorter), judged by
         the last gate."""
-        self._learn(kind, now_s, self._gate(1), self._tuck_of(1))
+        self._learn(kind, now_s, self._gate(1))
 
-    def _gate(self, back: int) -> tuple[int | None, int | None]:
-        """(cell, row) of the gate ``back`` gates ago (1: the last); (None, None) before it."""
-        return self._gates[-back] if len(self._gates) >= back else (None, None)
+    def _gate(self, back: int) -> _Gate:
+        """The gate ``back`` gates ago (1: the last); an empty one before it."""
+        return self._gates[-back] if len(self._gates) >= back else _NO_GATE
 
-    def _tuck_of(self, back: int) -> float:
-        """How tucked the swing of the gate ``back`` gates ago was (0 before it)."""
-        return self._tucks[-back] if len(self._tucks) >= back else 0.0
-
-    def _learn(self, kind: str, now_s: float, gate: tuple[int | None, int | None], tucked: float = 0.0) -> None:
+    def _learn(self, kind: str, now_s: float, gate: _Gate) -> None:
         if kind not in ("extension", "placement"):
             raise ValueError(f"unknown reflex kind {kind!r}")
         c = self.config
@@ -370,9 +377,9 @@ class ImprovedPremotor:
             return
         traces = self.traces.at(now_s).reshape(self.weights.shape)
         own = self.own_traces.at(now_s).reshape(self.weights.shape)  # the gated cells' own traces
-        cell, row = gate
+        cell, row = gate.cell, gate.row
         gain = 1.0
-        if c.flip_at <= 1.0 and cell is not None and row is not None and (c.flip_tucked or tucked == 0.0):
+        if c.flip_at <= 1.0 and cell is not None and row is not None and (c.flip_tucked or gate.tuck == 0.0):
             # the swing this gate drove asked all the memory could and still fell short (or long):
             # lengthening (shortening) cannot help; the other branch of the stride map can
             held = float(self.weights[row, cell])
@@ -420,29 +427,34 @@ class ImprovedPremotor:
         self._speed_sum += speed_m_s / variance_m2_s2
         self.ground_speed_m_s = self._speed_sum / self._speed_weight
 
+    def _at_sensed_speed(self, range_m: float) -> float:
+        """A time to contact given as gated range at the believed ground speed [m], as gated
+        range at the speed sensed so far (rule 10): the one conversion rules 9 and 11 share."""
+        if self.ground_speed_m_s == self._believed_m_s:
+            return range_m
+        return range_m * (self.ground_speed_m_s / self._believed_m_s)
+
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
         self._extra_s = 0.0
         row = self._row(context)
         limit = self.lift_ranges[row]
-        if self._tucked_rows[row] and self.ground_speed_m_s != self._believed_m_s:
-            # a time to contact: the range it takes at the ground speed sensed so far
-            limit *= self.ground_speed_m_s / self._believed_m_s
-        elif self.config.range_follows_tuck and self._tuck is not None and not self._tucked_rows[row]:
-            times = self.config.tucked_time_s
+        if self._tucked_rows[row]:
+            limit = self._at_sensed_speed(limit)
+        elif self.config.range_follows_tuck and self._tuck is not None:
             fraction = self._tuck(float(self.lifts[row]))
-            limit += fraction * (times[min(row, len(times) - 1)] * self.ground_speed_m_s - limit)
+            limit += fraction * (self._at_sensed_speed(self._tucked_ranges_m[row]) - limit)
         if gated_range_m is None or not gated_range_m < limit:
             self._lift_row = None
             return 1.0
         self._lift_row = row
-        if self._lifted:
-            self._lifted[-1] = (row, gated_range_m)
+        if self._gates:
+            self._gates[-1].lifted = (row, gated_range_m)
         amplitude = float(self.lifts[row])
         if self._tuck is not None:
             fraction = self._tuck(amplitude)
             self._extra_s = fraction * self._tucked_extra_s
-            if self._tucks:
-                self._tucks[-1] = fraction
+            if self._gates:
+                self._gates[-1].tuck = fraction
         return amplitude
 
     def on_contact_reflex(self, reflex: Reflex) -> None:
@@ -458,16 +470,15 @@ class ImprovedPremotor:
         landing = not reflex.swing and (c.landing_gate or (c.landing_on_top and reflex.cause == "foot_on_top"))
         back = 2 if landing else 1
         gate = self._gate(back)
-        lifted = self._lifted[-back] if len(self._lifted) >= back else None
-        if (c.learning and c.learn_lift_range and reflex.cause == "foot_on_top" and lifted is not None
-                and self._tuck_of(back) > 0.0):
+        if (c.learning and c.learn_lift_range and reflex.cause == "foot_on_top" and gate.lifted is not None
+                and gate.tuck > 0.0):
             # a tucked swing (the longest) still came down on top: its take-off was beyond the
             # reach of a crossing, so this context lifts only from nearer than that gate's range
-            row, gated_range_m = lifted
+            row, gated_range_m = gate.lifted
             if gated_range_m < self.lift_ranges[row]:
                 self.lift_ranges[row] = gated_range_m
                 self.range_shrinks += 1
-        if gate[0] is None and self._gate(back + 1)[0] is not None:
+        if gate.cell is None and self._gate(back + 1).cell is not None:
             kind = "placement"
             self.too_close += 1
         if (c.learning and reflex.swing and reflex.phase < c.lift_phase and reflex.cause in ("shin", "foot_in_air")
@@ -477,4 +488,4 @@ class ImprovedPremotor:
             if raised > self.lifts[row]:
                 self.lifts[row] = raised
                 self.lift_raises += 1
-        self._learn(kind, reflex.t_s, gate, self._tuck_of(back))
+        self._learn(kind, reflex.t_s, gate)
