@@ -344,6 +344,18 @@ class RigPlant:
                     return True
         return False
 
+    def leg_contact_points(self) -> list[tuple[str, str, float, float]]:
+        """The leg's contact points of this step, for diagnosis (issue 18's contacts no reflex
+        heard): (link, body, distance [m], normal force [N]); link ``foot``, ``shank`` or
+        ``link<index>``, body ``block``, ``ground`` or ``body<id>``. The points :meth:`contacts`
+        read this step (read now if it has not)."""
+        self.contacts()
+        links = {self.foot_link: "foot", self.shank_link: "shank"}
+        bodies = {body: "block" for body, _ in self._obstacles}
+        bodies[self.ground] = "ground"
+        return [(links.get(pt[3], f"link{pt[3]}"), bodies.get(pt[2], f"body{pt[2]}"), float(pt[8]), float(pt[9]))
+                for pt in self._contact_points]
+
     def render_rgb(self, width: int = 480, height: int = 320, target_x_m: float | None = None):
         """An RGB image (height x width x 3 uint8 list) from a side camera, DIRECT mode included."""
         x = self.carriage_x_m if target_x_m is None else target_x_m

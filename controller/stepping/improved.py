@@ -125,6 +125,12 @@ weights) and ``fade_gated_only`` (the neighbours' credit fades only for cells ga
 the tuning seeds neither did better (docs/improved.md, "Round 7"): at the boundary between a
 long crossing and a short step, a new cell's neighbours disagree.
 
+One of round 10, off by default: ``spread_at_lift_edge`` (a gate's credit reaches only the
+neighbouring cells on its own side of its context's lift range: a tucked crossing and a plain
+step are different decisions). On tuning seeds 44-69 the tucked crossings no longer took the
+plain steps' "shorter", but the take-offs drifted into the gap between the crossing and one
+more step, and more late mistakes came (docs/improved.md, "Round 10").
+
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
 to be tried, and off by default (0): with the spread it cost late mistakes on the tuning seeds.
@@ -194,6 +200,9 @@ class ImprovedConfig:
     range_follows_tuck: bool = setting(True, doc="a context that learns its lift lifts within a range that moves "
                                        "from lift_range_m to its tucked_time_s of contact as its swing tucks "
                                        "(round 9)")
+    spread_at_lift_edge: bool = setting(False, doc="a gate's credit spreads only to neighbouring cells on its own "
+                                        "side of its context's lift range: a lifted swing and a plain step "
+                                        "are different decisions (round 10)")
     learn_lift_range: bool = setting(False, doc="each context's lift range starts at lift_range_m and shrinks "
                                      "below the gated range of a tucked swing whose foot came down on top of "
                                      "the block (round 8, docs/improved.md)")
@@ -234,22 +243,28 @@ class ImprovedPremotor:
     (:func:`controller.motion.gait.tuck_fraction`), default None: the swing never tucks;
     ``tucked_extra_s``: how much longer a fully tucked swing's burst is [s], default 0;
     ``ground_speed_m_s``: the ground speed the controller believes [m/s], default 0.5 (a context
-    that starts tucked lifts within ``tucked_time_s`` of contact at it).
+    that starts tucked lifts within ``tucked_time_s`` of contact at it);
+    ``cell_width_m``: the range encoder's cell width [m], default None (needed by
+    ``spread_at_lift_edge``).
     Attributes read by experiments: ``weights`` (n_contexts x n_cells) [s], ``lifts`` (one
     amplitude per context), ``lift_raises`` (how many reflexes raised a lift).
     """
 
     def __init__(self, n_contexts: int, n_cells: int, base_burst_s: float,
                  config: ImprovedConfig = ImprovedConfig(), tuck: Callable[[float], float] | None = None,
-                 tucked_extra_s: float = 0.0, ground_speed_m_s: float = 0.5) -> None:
+                 tucked_extra_s: float = 0.0, ground_speed_m_s: float = 0.5,
+                 cell_width_m: float | None = None) -> None:
         if not (isinstance(n_contexts, int) and n_contexts >= 1 and isinstance(n_cells, int) and n_cells >= 1):
             raise ValueError(f"n_contexts and n_cells must be positive integers, got {n_contexts!r}, {n_cells!r}")
         if not (math.isfinite(ground_speed_m_s) and ground_speed_m_s > 0.0):
             raise ValueError(f"ground_speed_m_s must be a finite speed > 0 m/s, got {ground_speed_m_s!r}")
         if not (math.isfinite(tucked_extra_s) and tucked_extra_s >= 0.0):
             raise ValueError(f"tucked_extra_s must be a finite burst length >= 0 s, got {tucked_extra_s!r}")
+        if config.spread_at_lift_edge and not (cell_width_m is not None and cell_width_m > 0.0):
+            raise ValueError(f"improved.spread_at_lift_edge needs the encoder's cell width > 0 m, got {cell_width_m!r}")
         self.config = config
         self.base_burst_s = base_burst_s
+        self._cell_width_m = cell_width_m
         self._tuck = tuck
         self._tucked_extra_s = tucked_extra_s
         self._extra_s = 0.0  # this step cycle's lengthening for a tucked swing
@@ -315,8 +330,11 @@ class ImprovedPremotor:
         own = self.own_trained[row]
         settle = self.config.spread_settle
         fade = 1.0 / (1.0 + self.reflexes / self.config.spread_fade)
+        edge = self._lift_limit_m(row) / self._cell_width_m if self.config.spread_at_lift_edge else None
         for k, amount in self._spread:
             neighbour = cell + k
+            if edge is not None and k != 0 and (neighbour + 0.5 < edge) != (cell + 0.5 < edge):
+                continue  # across the lift's edge: the other swing, another decision
             if 0 <= neighbour < self.n_cells:
                 if k != 0:  # a neighbour trained by its own mistakes takes less of this cell's credit
                     faded = fade if not self.config.fade_gated_only or self.visits[row, neighbour] > 0 else 1.0
@@ -434,15 +452,20 @@ class ImprovedPremotor:
             return range_m
         return range_m * (self.ground_speed_m_s / self._believed_m_s)
 
+    def _lift_limit_m(self, row: int) -> float:
+        """The gated range below which the context ``row`` lifts (rules 6, 9, 10, 11) [m]."""
+        limit = float(self.lift_ranges[row])
+        if self._tucked_rows[row]:
+            return self._at_sensed_speed(limit)
+        if self.config.range_follows_tuck and self._tuck is not None:
+            fraction = self._tuck(float(self.lifts[row]))
+            limit += fraction * (self._at_sensed_speed(self._tucked_ranges_m[row]) - limit)
+        return limit
+
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
         self._extra_s = 0.0
         row = self._row(context)
-        limit = self.lift_ranges[row]
-        if self._tucked_rows[row]:
-            limit = self._at_sensed_speed(limit)
-        elif self.config.range_follows_tuck and self._tuck is not None:
-            fraction = self._tuck(float(self.lifts[row]))
-            limit += fraction * (self._at_sensed_speed(self._tucked_ranges_m[row]) - limit)
+        limit = self._lift_limit_m(row)
         if gated_range_m is None or not gated_range_m < limit:
             self._lift_row = None
             return 1.0

@@ -169,6 +169,11 @@ class LearningRun:
         the obstacle's near edge (``crossing_s``) and its end (``end_s``), by which a controller's
         records are matched to it (``hil --clock sim``)."""
 
+    @property
+    def near_edge_m(self) -> float | None:
+        """The current trial's obstacle near edge [m, world x] (ground truth); None between trials."""
+        return self._near_m
+
     def _true_height_m(self) -> float | None:
         return self._height_m if self._near_m is not None else None
 

@@ -85,7 +85,8 @@ def build_improved(controller: ControllerConfig, learning: bool = True, **settin
     cpg = controller.cpg
     return ImprovedPremotor(controller.height.n_contexts, controller.encoder.n_cells, cpg.burst_s, config,
                             tuck=partial(tuck_fraction, controller.gait), tucked_extra_s=cpg.burst_max_s - cpg.burst_s,
-                            ground_speed_m_s=controller.gait.ground_speed_m_s)
+                            ground_speed_m_s=controller.gait.ground_speed_m_s,
+                            cell_width_m=controller.encoder.cell_width_m)
 
 
 def _improved(controller: ControllerConfig, learning: bool, seed: int, truth: Truth, height: Truth):

@@ -41,6 +41,20 @@ def test_obstacle_contact_from_the_steps_points_agrees_with_the_query(plant: Rig
     assert any(answers) and not all(answers)  # both answers were exercised
 
 
+def test_the_leg_contact_points_name_the_link_and_the_body_and_agree_with_the_truth(plant: RigPlant) -> None:
+    # the limp leg dragged into a tall block: the points say "block" exactly while the truth says touching
+    plant.add_obstacle(Obstacle(plant.carriage_x_m + 0.35, 0.15, 0.10))
+    seen = set()
+    for _ in range(1500):
+        plant.step()
+        points = plant.leg_contact_points()
+        assert len(points) == len(plant._contact_points)
+        on_block = [p for p in points if p[1] == "block"]
+        assert plant.obstacle_contact() == any(d <= 0.0 or f > 0.0 for _, _, d, f in on_block)
+        seen.update((link, body) for link, body, _, _ in points)
+    assert {("foot", "ground"), ("foot", "block"), ("shank", "block")} <= seen, seen
+
+
 def test_obstacle_contact_after_the_obstacles_change_asks_pybullet(plant: RigPlant) -> None:
     plant.add_obstacle(Obstacle(plant.carriage_x_m + 0.35, 0.15, 0.10))
     for _ in range(1500):

@@ -462,3 +462,22 @@ def test_a_context_that_learns_its_lift_lifts_nearer_as_its_swing_tucks():
                            tuck=tuck)
     off.lifts[3] = 3.4
     assert off.lift_amplitude(0.39, 3) > 1.0  # off: 0.40 m whatever the tuck
+
+
+def test_with_spread_at_lift_edge_the_credit_stops_at_the_contexts_lift_range():
+    """A tucked context lifts within 0.28 m (cells 0-6 of 0.04 m): a gate on one side spreads its
+    credit only to the cells on its own side; without the rule it reaches across."""
+    def traces(edge: bool, cell: int) -> np.ndarray:
+        config = ImprovedConfig(tucked_contexts=2, lift_max=3.44, context_share=0.5, spread_at_lift_edge=edge)
+        p = ImprovedPremotor(4, 28, BASE, config, cell_width_m=0.04)
+        p.on_step_onset(0.0, cell, context=1)
+        return p.traces.at(0.0).reshape(4, 28)
+
+    beyond = traces(True, 8)
+    assert beyond[1, 7] > 0.0 and beyond[1, 12] > 0.0 and beyond[1, 3:7].sum() == 0.0
+    assert beyond[0, 7] > 0.0 and beyond[0, 3:7].sum() == 0.0  # the shared row, alike
+    within = traces(True, 5)
+    assert within[1, 1] > 0.0 and within[1, 6] > 0.0 and within[1, 7:].sum() == 0.0
+    assert traces(False, 8)[1, 4] > 0.0  # the rule off: across the edge as before
+    with pytest.raises(ValueError, match="cell width"):
+        ImprovedPremotor(4, 28, BASE, ImprovedConfig(spread_at_lift_edge=True))
