@@ -125,11 +125,13 @@ weights) and ``fade_gated_only`` (the neighbours' credit fades only for cells ga
 the tuning seeds neither did better (docs/improved.md, "Round 7"): at the boundary between a
 long crossing and a short step, a new cell's neighbours disagree.
 
-One of round 10, off by default: ``spread_at_lift_edge`` (a gate's credit reaches only the
-neighbouring cells on its own side of its context's lift range: a tucked crossing and a plain
-step are different decisions). On tuning seeds 44-69 the tucked crossings no longer took the
-plain steps' "shorter", but the take-offs drifted into the gap between the crossing and one
-more step, and more late mistakes came (docs/improved.md, "Round 10").
+Two of round 10, off by default, for the late crossings that come down on top with a weight
+the plain steps' "shorter" gave them through the spread: ``spread_at_lift_edge`` (a gate's
+credit reaches only the neighbouring cells on its own side of its context's lift range: a
+tucked crossing and a plain step are different decisions) and ``too_close_at_lift_edge`` (only
+rule 4's placement stops there). On tuning seeds 44-69 the tucked crossings kept their weights
+near 0 with either, but the late take-offs lay farther out, at the crossing's far edge, and
+more late mistakes came (docs/improved.md, "Round 10").
 
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
@@ -203,6 +205,9 @@ class ImprovedConfig:
     spread_at_lift_edge: bool = setting(False, doc="a gate's credit spreads only to neighbouring cells on its own "
                                         "side of its context's lift range: a lifted swing and a plain step "
                                         "are different decisions (round 10)")
+    too_close_at_lift_edge: bool = setting(False, doc="the too-close rule's placement (rule 4) moves no weight "
+                                           "on the other side of the lift range from the gate before it "
+                                           "(round 10)")
     learn_lift_range: bool = setting(False, doc="each context's lift range starts at lift_range_m and shrinks "
                                      "below the gated range of a tucked swing whose foot came down on top of "
                                      "the block (round 8, docs/improved.md)")
@@ -233,6 +238,23 @@ class _Gate:
 _NO_GATE = _Gate(None, None)  # before the first onset
 
 
+@dataclass(frozen=True)
+class Lesson:
+    """One reflex as the weights learnt it, for whoever watches (:attr:`ImprovedPremotor.on_lesson`).
+
+    ``kind``: what was learnt ("extension" or "placement", after rules 4 and 5); ``t_s``: when [s];
+    ``cell``, ``row``: the judged gate's (None: it held none); ``tuck``: how tucked that gate's
+    swing was (0..1); ``before_s``: a copy of every weight before [s]; ``after_s``: after [s]."""
+
+    kind: str
+    t_s: float
+    cell: int | None
+    row: int | None
+    tuck: float
+    before_s: np.ndarray
+    after_s: np.ndarray
+
+
 class ImprovedPremotor:
     """Sets the CPG's burst length and lift from gated (context, cell) memory; learns both from
     reflexes (the :class:`controller.stepping.premotor.LiftingPremotor` protocol).
@@ -260,8 +282,10 @@ class ImprovedPremotor:
             raise ValueError(f"ground_speed_m_s must be a finite speed > 0 m/s, got {ground_speed_m_s!r}")
         if not (math.isfinite(tucked_extra_s) and tucked_extra_s >= 0.0):
             raise ValueError(f"tucked_extra_s must be a finite burst length >= 0 s, got {tucked_extra_s!r}")
-        if config.spread_at_lift_edge and not (cell_width_m is not None and cell_width_m > 0.0):
-            raise ValueError(f"improved.spread_at_lift_edge needs the encoder's cell width > 0 m, got {cell_width_m!r}")
+        if ((config.spread_at_lift_edge or config.too_close_at_lift_edge)
+                and not (cell_width_m is not None and cell_width_m > 0.0)):
+            raise ValueError(f"improved.spread_at_lift_edge and improved.too_close_at_lift_edge need the encoder's "
+                             f"cell width > 0 m, got {cell_width_m!r}")
         self.config = config
         self.base_burst_s = base_burst_s
         self._cell_width_m = cell_width_m
@@ -306,6 +330,8 @@ class ImprovedPremotor:
         reach = self._reach = int(math.ceil(3.0 * config.spread_cells))
         self._spread = [(k, math.exp(-k * k / (2.0 * config.spread_cells ** 2))) for k in range(-reach, reach + 1)] \
             if config.spread_cells > 0.0 else [(0, 1.0)]
+        self.on_lesson: Callable[[Lesson], None] | None = None
+        """Called with each :class:`Lesson` when set (an experiment's watcher; None costs nothing)."""
 
     def _row(self, context: int | None) -> int:
         if context is None:
@@ -387,7 +413,9 @@ class ImprovedPremotor:
         """The gate ``back`` gates ago (1: the last); an empty one before it."""
         return self._gates[-back] if len(self._gates) >= back else _NO_GATE
 
-    def _learn(self, kind: str, now_s: float, gate: _Gate) -> None:
+    def _learn(self, kind: str, now_s: float, gate: _Gate, keep_side: _Gate | None = None) -> None:
+        """``keep_side``: a gate whose side of its row's lift range alone may learn (the other
+        side's weights stay as they are), or None."""
         if kind not in ("extension", "placement"):
             raise ValueError(f"unknown reflex kind {kind!r}")
         c = self.config
@@ -427,8 +455,15 @@ class ImprovedPremotor:
                 if stuck.any():
                     change = np.where(stuck, -2.0 * self.weights, change)
                     self.flips += int(np.count_nonzero(stuck))
+        if keep_side is not None and keep_side.cell is not None and keep_side.row is not None:
+            edge = self._lift_limit_m(keep_side.row) / self._cell_width_m
+            lifted = np.arange(self.n_cells) + 0.5 < edge
+            change = np.where(lifted != (keep_side.cell + 0.5 < edge), 0.0, change)
+        before = self.weights.copy() if self.on_lesson is not None else None
         self.weights += change
         np.clip(self.weights, -c.weight_limit_s, c.weight_limit_s, out=self.weights)
+        if before is not None:
+            self.on_lesson(Lesson(kind, now_s, cell, row, gate.tuck, before, self.weights.copy()))
         self.trained += traces
         self.reflexes += 1
         self.own_trained += own
@@ -493,6 +528,7 @@ class ImprovedPremotor:
         landing = not reflex.swing and (c.landing_gate or (c.landing_on_top and reflex.cause == "foot_on_top"))
         back = 2 if landing else 1
         gate = self._gate(back)
+        keep: _Gate | None = None  # with too_close_at_lift_edge: the side of the lift range that learns
         if (c.learning and c.learn_lift_range and reflex.cause == "foot_on_top" and gate.lifted is not None
                 and gate.tuck > 0.0):
             # a tucked swing (the longest) still came down on top: its take-off was beyond the
@@ -504,6 +540,8 @@ class ImprovedPremotor:
         if gate.cell is None and self._gate(back + 1).cell is not None:
             kind = "placement"
             self.too_close += 1
+            if c.too_close_at_lift_edge:
+                keep = self._gate(back + 1)
         if (c.learning and reflex.swing and reflex.phase < c.lift_phase and reflex.cause in ("shin", "foot_in_air")
                 and self._lift_row is not None):
             row = self._lift_row
@@ -511,4 +549,4 @@ class ImprovedPremotor:
             if raised > self.lifts[row]:
                 self.lifts[row] = raised
                 self.lift_raises += 1
-        self._learn(kind, reflex.t_s, gate)
+        self._learn(kind, reflex.t_s, gate, keep)

@@ -8,6 +8,9 @@ append-only record a stopped run resumes from, the folder lock); :mod:`hil.exper
 planner given the true distance (and height); :mod:`hil.experiments.tuning` tries the improved
 learner's settings on the tuning seeds (0-99) only; :mod:`hil.experiments.window` measures, with the
 oracle, from where before a block the last swing clears it (the take-off window);
+:mod:`hil.experiments.touches` replays a trial and prints its obstacle contacts step by step (the
+contacts no reflex heard); :mod:`hil.experiments.credit` prints every reflex that moved one of the
+improved learner's weights;
 :mod:`hil.experiments.relaxation` runs the paper learner with and without the memory relaxing after
 the obstacle (the paper's claim R5); :mod:`hil.experiments.rl_baseline` trains stable-baselines3's
 PPO or DQN on the approach task (:mod:`hil.envs`).

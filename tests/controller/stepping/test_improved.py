@@ -481,3 +481,23 @@ def test_with_spread_at_lift_edge_the_credit_stops_at_the_contexts_lift_range():
     assert traces(False, 8)[1, 4] > 0.0  # the rule off: across the edge as before
     with pytest.raises(ValueError, match="cell width"):
         ImprovedPremotor(4, 28, BASE, ImprovedConfig(spread_at_lift_edge=True))
+
+
+def test_with_too_close_at_lift_edge_rule_4_moves_only_the_gate_befores_side_of_the_lift_range():
+    """A plain step from cell 7 (beyond the tucked range, 0.28 m) put the foot at the face; the
+    empty gate after it fires rule 4 ("placement"). The spread's credit reaches the tucked cells
+    below 0.28 m; with the rule they keep their weights."""
+    def run(rule: bool) -> np.ndarray:
+        config = ImprovedConfig(tucked_contexts=2, lift_max=3.44, context_share=0.5, too_close_at_lift_edge=rule)
+        p = ImprovedPremotor(4, 28, BASE, config, cell_width_m=0.04)
+        p.on_step_onset(0.0, 7, context=1)
+        assert p.lift_amplitude(0.30, 1) == 1.0  # a plain step
+        p.on_step_onset(0.7, None, context=1)
+        p.on_contact_reflex(reflex("extension", 1.0, cause="shin", swing=True, phase=0.3))
+        assert p.too_close == 1
+        return p.weights
+
+    off, on = run(False), run(True)
+    assert off[1, 6] < 0.0 and off[1, 7] < 0.0  # across the edge, as before
+    assert on[1, 7] == off[1, 7] and on[1, 10] == off[1, 10] and on[0, 8] == off[0, 8]  # its own side: the same
+    assert not on[:, :7].any()  # the tucked side: untouched, in the shared row too
