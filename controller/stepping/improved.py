@@ -267,7 +267,8 @@ class ImprovedPremotor:
     ``ground_speed_m_s``: the ground speed the controller believes [m/s], default 0.5 (a context
     that starts tucked lifts within ``tucked_time_s`` of contact at it);
     ``cell_width_m``: the range encoder's cell width [m], default None (needed by
-    ``spread_at_lift_edge``).
+    ``spread_at_lift_edge`` and ``too_close_at_lift_edge``, which place the lift range's edge
+    among the cells).
     Attributes read by experiments: ``weights`` (n_contexts x n_cells) [s], ``lifts`` (one
     amplitude per context), ``lift_raises`` (how many reflexes raised a lift).
     """

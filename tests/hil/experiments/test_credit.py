@@ -21,7 +21,8 @@ def test_each_lesson_carries_the_weights_before_and_after_and_the_judged_gate():
     assert not lesson.before_s.any() and np.array_equal(lesson.after_s, p.weights)
     assert lesson.after_s[1, 10] > lesson.after_s[1, 11] > 0.0  # the spread
     line = credit.lesson_line(7, lesson, 1, 11)
-    assert line is not None and line.startswith("trial 7 extension judged at cell 10 row 1 (tuck 0.00): w[1,11] +0.000 -> +")
+    assert line is not None
+    assert line.startswith("trial 7 extension judged at cell 10 row 1 (tuck 0.00): w[1,11] +0.000 -> +")
     assert credit.lesson_line(7, lesson, 1, 20) is None  # not moved: no line
 
 
