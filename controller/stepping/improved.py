@@ -357,12 +357,12 @@ class ImprovedPremotor:
         own = self.own_trained[row]
         settle = self.config.spread_settle
         fade = 1.0 / (1.0 + self.reflexes / self.config.spread_fade)
-        edge = self._lift_limit_m(row) / self._cell_width_m if self.config.spread_at_lift_edge else None
+        within = self._within_lift_range(row) if self.config.spread_at_lift_edge else None
         for k, amount in self._spread:
             neighbour = cell + k
-            if edge is not None and k != 0 and (neighbour + 0.5 < edge) != (cell + 0.5 < edge):
-                continue  # across the lift's edge: the other swing, another decision
             if 0 <= neighbour < self.n_cells:
+                if within is not None and within[neighbour] != within[cell]:
+                    continue  # across the lift's edge: the other swing, another decision
                 if k != 0:  # a neighbour trained by its own mistakes takes less of this cell's credit
                     faded = fade if not self.config.fade_gated_only or self.visits[row, neighbour] > 0 else 1.0
                     amount *= faded / (1.0 + own[neighbour] / settle)
@@ -457,9 +457,8 @@ class ImprovedPremotor:
                     change = np.where(stuck, -2.0 * self.weights, change)
                     self.flips += int(np.count_nonzero(stuck))
         if keep_side is not None and keep_side.cell is not None and keep_side.row is not None:
-            edge = self._lift_limit_m(keep_side.row) / self._cell_width_m
-            lifted = np.arange(self.n_cells) + 0.5 < edge
-            change = np.where(lifted != (keep_side.cell + 0.5 < edge), 0.0, change)
+            within = self._within_lift_range(keep_side.row)
+            change = np.where(within != within[keep_side.cell], 0.0, change)
         before = self.weights.copy() if self.on_lesson is not None else None
         self.weights += change
         np.clip(self.weights, -c.weight_limit_s, c.weight_limit_s, out=self.weights)
@@ -497,6 +496,11 @@ class ImprovedPremotor:
             fraction = self._tuck(float(self.lifts[row]))
             limit += fraction * (self._at_sensed_speed(self._tucked_ranges_m[row]) - limit)
         return limit
+
+    def _within_lift_range(self, row: int) -> np.ndarray:
+        """Per cell, whether its centre lies within the context ``row``'s lift range (the side of
+        the lift's edge a cell is on: ``spread_at_lift_edge``, ``too_close_at_lift_edge``)."""
+        return np.arange(self.n_cells) + 0.5 < self._lift_limit_m(row) / self._cell_width_m
 
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
         self._extra_s = 0.0
