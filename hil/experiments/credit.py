@@ -43,18 +43,21 @@ def failure_line(record: dict[str, Any]) -> str:
     return f"trial {record['index']} failed: footfalls {footfalls}; gates {gates}; reflexes {reflexes}"
 
 
-def watch(seed: int, trials: int, row: int, cell: int, heights: tuple[float, ...]) -> list[str]:
-    """Run the improved learner and return the lines, in order."""
-    from hil.experiments.learn import LearningRun, learn_config
+def check_weight(config, row: int, cell: int) -> None:
+    """ValueError unless ``[row, cell]`` is a weight of the improved learner of ``config``."""
+    rows, cells = config.controller.height.n_contexts, config.controller.encoder.n_cells
+    if not (0 <= row < rows and 0 <= cell < cells):
+        raise ValueError(f"--row must be in [0, {rows - 1}] and --cell in [0, {cells - 1}], got {row}, {cell}")
 
-    config = learn_config("improved", seed=seed, trials=trials,
-                          obstacle_height_m=heights if len(heights) > 1 else heights[0])
+
+def watch(config, row: int, cell: int) -> list[str]:
+    """Run the learning run ``config`` (a :class:`hil.experiments.learn.LearnConfig` of the
+    improved learner) and return the lines, in order."""
+    from hil.experiments.learn import LearningRun
+
+    check_weight(config, row, cell)
     run = LearningRun(config)
     premotor = run.premotor
-    if not (0 <= row < premotor.n_contexts and 0 <= cell < premotor.n_cells):
-        run.close()
-        raise ValueError(f"--row must be in [0, {premotor.n_contexts - 1}] and --cell in [0, {premotor.n_cells - 1}], "
-                         f"got {row}, {cell}")
     lines: list[str] = []
     trial = [-1]
 
@@ -66,7 +69,7 @@ def watch(seed: int, trials: int, row: int, cell: int, heights: tuple[float, ...
     premotor.on_lesson = on_lesson
     try:
         run.bring_up()
-        for i in range(trials):
+        for i in range(config.trials):
             trial[0] = i
             record = run.trial(i)
             run.trials.append(record)
@@ -86,21 +89,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--heights", default="0.08", help="obstacle heights [m], comma list (several: mixed per trial)")
     args = p.parse_args(argv)
     try:
-        heights = tuple(float(h) for h in args.heights.split(","))
+        from hil.experiments.sweep import parse_heights
+
+        heights = parse_heights(args.heights)
         if not 1 <= args.trials <= 10000:
             raise ValueError(f"--trials must be in [1, 10000], got {args.trials}")
-        from hil.experiments.learn import learn_config
+        from hil.experiments.learn import learn_config, one_or_mixed
 
-        config = learn_config("improved", seed=args.seed, trials=args.trials,
-                              obstacle_height_m=heights if len(heights) > 1 else heights[0])
-        rows, cells = config.controller.height.n_contexts, config.controller.encoder.n_cells
-        if not (0 <= args.row < rows and 0 <= args.cell < cells):
-            raise ValueError(f"--row must be in [0, {rows - 1}] and --cell in [0, {cells - 1}], "
-                             f"got {args.row}, {args.cell}")
+        config = learn_config("improved", seed=args.seed, trials=args.trials, obstacle_height_m=one_or_mixed(heights))
+        check_weight(config, args.row, args.cell)
     except ValueError as exc:
         print(f"credit: error: {exc}", file=sys.stderr)
         return 2
-    lines = watch(args.seed, args.trials, args.row, args.cell, heights)
+    lines = watch(config, args.row, args.cell)
     print("\n".join(lines) if lines else f"w[{args.row},{args.cell}] never moved, and no trial failed")
     return 0
 

@@ -698,6 +698,13 @@ def write_figures(out: Path, metrics: dict[str, Any], premotor) -> None:
     figures.footfall_spread(footfall_std_by_step([metrics], *late), fig_dir)
 
 
+def one_or_mixed(heights: tuple[float, ...]) -> float | tuple[float, ...]:
+    """:func:`learn_config`'s ``obstacle_height_m`` for a tool's list of heights: one height alone,
+    several as a tuple, mixed per trial. A tuple of one would still draw each trial's height from
+    the seeded generator, and so change every later start distance."""
+    return heights if len(heights) > 1 else heights[0]
+
+
 def learn_config(method: str, *, seed: int, trials: int, obstacle_height_m: float | tuple[float, ...],
                  conditions: Conditions | None = None, **overrides: Any) -> LearnConfig:
     """The learning run's configuration for ``method``; a tuple of heights mixes them per trial.

@@ -74,12 +74,11 @@ def header(record: dict[str, Any]) -> list[str]:
     ]
 
 
-def replay(method: str, seed: int, trial: int, heights: tuple[float, ...]) -> tuple[dict[str, Any], list[Step]]:
-    """Run ``method`` on ``seed`` to trial ``trial`` and record that trial step by step."""
-    from hil.experiments.learn import LearningRun, learn_config
+def replay(config, trial: int) -> tuple[dict[str, Any], list[Step]]:
+    """Run the learning run ``config`` (a :class:`hil.experiments.learn.LearnConfig`) to trial
+    ``trial`` and record that trial step by step."""
+    from hil.experiments.learn import LearningRun
 
-    config = learn_config(method, seed=seed, trials=trial + 1,
-                          obstacle_height_m=heights if len(heights) > 1 else heights[0])
     run = LearningRun(config)
     try:
         run.bring_up()
@@ -113,19 +112,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--after-s", type=float, default=0.03, help="steps shown after each contact [s] (default 0.03)")
     args = p.parse_args(argv)
     try:
-        heights = tuple(float(h) for h in args.heights.split(","))
+        from hil.experiments.sweep import parse_heights
+
+        heights = parse_heights(args.heights)
         if not 0 <= args.trial <= 10000:
             raise ValueError(f"--trial must be in [0, 10000], got {args.trial}")
         if not (0.0 <= args.before_s <= 10.0 and 0.0 <= args.after_s <= 10.0):
             raise ValueError(f"--before-s and --after-s must be in [0, 10] s, got {args.before_s}, {args.after_s}")
-        from hil.experiments.learn import learn_config
+        from hil.experiments.learn import learn_config, one_or_mixed
 
-        learn_config(args.method, seed=args.seed, trials=args.trial + 1,
-                     obstacle_height_m=heights if len(heights) > 1 else heights[0])
+        config = learn_config(args.method, seed=args.seed, trials=args.trial + 1,
+                              obstacle_height_m=one_or_mixed(heights))
     except ValueError as exc:
         print(f"touches: error: {exc}", file=sys.stderr)
         return 2
-    record, steps = replay(args.method, args.seed, args.trial, heights)
+    record, steps = replay(config, args.trial)
     lines = header(record)
     for k, episode in enumerate(around_contacts(steps, record["contacts"], args.before_s, args.after_s)):
         lines.append(f"-- contact episode {k + 1}: t_s foot_x_m foot_z_m switches/truth half phase points")

@@ -212,3 +212,12 @@ def test_run_calls_the_trial_hooks_around_each_trial_in_order():
     assert len(records) == 3
     assert calls == [("before", 0, 0), ("after", 0, 0, True), ("before", 1, 1), ("after", 1, 1, True),
                      ("before", 2, 2), ("after", 2, 2, True)]
+
+
+def test_a_tools_list_of_one_height_is_one_height_not_a_mix_of_one():
+    from hil.experiments.learn import learn_config, one_or_mixed
+
+    assert one_or_mixed((0.08,)) == 0.08
+    assert one_or_mixed((0.04, 0.08)) == (0.04, 0.08)
+    assert learn_config("improved", seed=1, trials=2, obstacle_height_m=one_or_mixed((0.08,))).obstacle_heights_m == ()
+    assert learn_config("improved", seed=1, trials=2, obstacle_height_m=(0.08,)).obstacle_heights_m == (0.08,)

@@ -24,8 +24,9 @@ def test_the_rows_around_each_contact_episode_and_what_a_row_says():
 def test_the_replayed_trial_is_the_learning_runs_own_and_its_touches_lie_in_its_contacts():
     """Tuning seed 46 fails its first trial at 0.08 m (improved): the replay gives that trial's
     record, field for field, and the ground truth's touching steps are its contact episodes."""
-    record, steps = touches.replay("improved", 46, 0, (0.08,))
-    learnt = run_learning(learn_config("improved", seed=46, trials=1, obstacle_height_m=0.08))["trials"][0]
+    config = learn_config("improved", seed=46, trials=1, obstacle_height_m=0.08)
+    record, steps = touches.replay(config, 0)
+    learnt = run_learning(config)["trials"][0]
     assert record == learnt
     assert not record["success"] and record["contacts"]
     touching = [s for s in steps if s.touching]
@@ -43,3 +44,9 @@ def test_bad_input_is_one_line_and_exit_2(capsys):
     assert touches.main(["--seed", "1", "--trial", "0", "--method", "nonesuch"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(line.startswith("touches: error: ") for line in err)
+
+
+def test_heights_that_are_not_numbers_are_one_line(capsys):
+    assert touches.main(["--seed", "1", "--trial", "0", "--heights", "0.08,x"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "touches: error: obstacle_heights_m: '0.08,x' is not a comma list of heights in metres"
