@@ -501,3 +501,24 @@ def test_with_too_close_at_lift_edge_rule_4_moves_only_the_gate_befores_side_of_
     assert off[1, 6] < 0.0 and off[1, 7] < 0.0  # across the edge, as before
     assert on[1, 7] == off[1, 7] and on[1, 10] == off[1, 10] and on[0, 8] == off[0, 8]  # its own side: the same
     assert not on[:, :7].any()  # the tucked side: untouched, in the shared row too
+
+
+def test_with_too_close_last_step_the_gates_before_the_last_step_learn_the_reflexs_own_kind():
+    """Round 11: the step before (cell 15) took the foot into the gap, the plain step from there
+    (cell 7) put it at the face and the empty gate after it fires rule 4. The placement is the
+    last step's; the step before learns the phase's "extension" (a longer step before: the
+    take-off nearer). A reflex whose phase already says placement is learnt as before."""
+    def run(rule: bool, kind: str = "extension") -> np.ndarray:
+        p = premotor(too_close_last_step=rule)
+        p.on_step_onset(0.0, 15, context=1)
+        p.on_step_onset(0.7, 7, context=1)
+        p.on_step_onset(1.4, None, context=1)
+        p.on_contact_reflex(reflex(kind, 1.6, cause="shin", swing=True, phase=0.3))
+        assert p.too_close == 1
+        return p.weights
+
+    off, on = run(False), run(True)
+    assert off[1, 15] < 0.0 and off[1, 7] < 0.0  # every traced weight shorter, as before
+    assert on[1, 7] == off[1, 7] and on[1, 12] == off[1, 12]  # the last step's neighbourhood: the same
+    assert on[1, 15] == -off[1, 15] > 0.0 and on[0, 15] == -off[0, 15]  # the step before: longer
+    assert (run(True, "placement") == run(False, "placement")).all()
