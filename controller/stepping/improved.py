@@ -429,12 +429,17 @@ class ImprovedPremotor:
         """The gate ``back`` gates ago (1: the last); an empty one before it."""
         return self._gates[-back] if len(self._gates) >= back else _NO_GATE
 
+    def _neighbourhood(self, cell: int) -> slice:
+        """The cells within the spread's reach of ``cell``, ``cell`` among them."""
+        return slice(max(0, cell - self._reach), cell + self._reach + 1)
+
     def _learn(self, kind: str, now_s: float, gate: _Gate, keep_side: _Gate | None = None,
                only_near: _Gate | None = None) -> None:
         """``keep_side``: a gate whose side of its row's lift range alone may learn (the other
         side's weights stay as they are), or None. ``only_near``: a gate outside whose
         neighbourhood (the spread's reach, every row) the weights learn the opposite of ``kind``,
-        or None."""
+        or None. The kind is a sign per cell, set before any rule reads it, so every rule after
+        (the branch a cell keeps, the commit) sees the kind its cell learns."""
         if kind not in ("extension", "placement"):
             raise ValueError(f"unknown reflex kind {kind!r}")
         c = self.config
@@ -456,7 +461,11 @@ class ImprovedPremotor:
                 self.flips += 1
         rate = c.learning_rate_s if c.settle_reflexes == 0.0 else c.learning_rate_s / (
             1.0 + self.trained / c.settle_reflexes)
-        sign = 1.0 if kind == "extension" else -1.0
+        sign: float | np.ndarray = 1.0 if kind == "extension" else -1.0
+        if only_near is not None and only_near.cell is not None:
+            near = np.zeros(self.n_cells, dtype=bool)
+            near[self._neighbourhood(only_near.cell)] = True
+            sign = np.where(near, sign, -sign)  # per cell, the same in every row
         if c.spread_keeps_branch:  # a cell on the other branch learns from its own gates only
             traces = np.where(self.weights * sign < 0.0, own, traces)  # (own <= traces everywhere)
         change = (sign * gain) * rate * traces
@@ -465,7 +474,7 @@ class ImprovedPremotor:
             # the gates before the judged one: either branch of an earlier step moves the take-off
             # out of the gap between them, so a weight already on one is not pulled back to the gap
             committed = np.abs(self.weights) >= c.commit_earlier_s
-            committed[:, max(0, cell - self._reach):cell + self._reach + 1] = False
+            committed[:, self._neighbourhood(cell)] = False
             committed[self._tucked_rows != self._tucked_rows[row]] = False
             change = np.where(committed, np.sign(self.weights) * gain * rate * traces, change)
             if c.commit_flip:
@@ -474,10 +483,6 @@ class ImprovedPremotor:
                 if stuck.any():
                     change = np.where(stuck, -2.0 * self.weights, change)
                     self.flips += int(np.count_nonzero(stuck))
-        if only_near is not None and only_near.cell is not None:
-            near = np.zeros(self.n_cells, dtype=bool)
-            near[max(0, only_near.cell - self._reach):only_near.cell + self._reach + 1] = True
-            change = np.where(near, change, -change)
         if keep_side is not None and keep_side.cell is not None and keep_side.row is not None:
             within = self._within_lift_range(keep_side.row)
             change = np.where(within != within[keep_side.cell], 0.0, change)

@@ -138,12 +138,11 @@ def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[fl
     ``controller``'s changes, under ``conditions`` (LearnConfig fields); with ``failures_after``,
     the failed trials from that index on as lines (see the module docstring)."""
     from hil.analysis.stats import trials_to_criterion
-    from hil.experiments.learn import LearnConfig, LearningRun
+    from hil.experiments.learn import LearningRun, learn_config, one_or_mixed
     from hil.experiments.methods import build_improved
 
-    config = LearnConfig(seed=seed, trials=trials, method="improved", obstacle_height_m=heights[0],
-                         obstacle_heights_m=heights if len(heights) > 1 else (),
-                         controller=controller_config(controller or {}), **(conditions or {}))
+    config = learn_config("improved", seed=seed, trials=trials, obstacle_height_m=one_or_mixed(heights),
+                          controller=controller_config(controller or {}), **(conditions or {}))
     premotor = build_improved(config.controller, **settings)
     run = LearningRun(config, premotor=premotor)
     failures: list[str] = []
@@ -225,12 +224,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--failures-after", type=int, default=None, metavar="N",
                    help="also print each failed trial from trial N on (its last gates, footfalls, reflex)")
     args = p.parse_args(argv)
+    from hil.experiments.sweep import parse_heights
+
     try:
         seeds = parse_seeds(args.seeds)
         settings = parse_settings(args.set)
         controller = parse_controller(args.controller)
         conditions = parse_conditions(args.condition)
-        heights = tuple(float(h) for h in args.heights.split(","))
+        heights = parse_heights(args.heights)
     except (ValueError, TypeError) as exc:
         print(f"tuning: error: {exc}", file=sys.stderr)
         return 2

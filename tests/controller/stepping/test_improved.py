@@ -522,3 +522,23 @@ def test_with_too_close_last_step_the_gates_before_the_last_step_learn_the_refle
     assert on[1, 7] == off[1, 7] and on[1, 12] == off[1, 12]  # the last step's neighbourhood: the same
     assert on[1, 15] == -off[1, 15] > 0.0 and on[0, 15] == -off[0, 15]  # the step before: longer
     assert (run(True, "placement") == run(False, "placement")).all()
+
+
+def test_too_close_last_step_sets_each_cells_kind_before_the_branch_is_chosen():
+    """With ``spread_keeps_branch`` a cell chooses its traces by the kind it learns. Under rule
+    12 the step before learns "extension", so a cell there already on the longer branch takes
+    the spread's credit (a cell on the other branch would take its own traces only: none)."""
+    def run(rule: bool) -> np.ndarray:
+        p = premotor(too_close_last_step=rule, spread_keeps_branch=True)
+        p.weights[1, 17] = 0.05  # beyond the last step's reach (cells 2-12), within cell 15's spread
+        p.weights[1, 4] = 0.05  # within the last step's reach: on the other branch than placement
+        p.on_step_onset(0.0, 15, context=1)
+        p.on_step_onset(0.7, 7, context=1)
+        p.on_step_onset(1.4, None, context=1)
+        p.on_contact_reflex(reflex("extension", 1.6, cause="shin", swing=True, phase=0.3))
+        return p.weights
+
+    on, off = run(True), run(False)
+    assert on[1, 17] > 0.05  # longer, by the spread from cell 15
+    assert off[1, 17] == 0.05  # all placement: on the other branch, no own trace, unchanged
+    assert on[1, 4] == off[1, 4] == 0.05  # the last step's neighbourhood: placement, own traces only
