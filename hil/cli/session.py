@@ -97,7 +97,7 @@ def main_hil(args) -> int:
         plan = _fault_plan(args)
     except ValueError as exc:  # the fault options contradict each other
         raise UsageError(str(exc)) from None
-    if plan is not None and plan.leg_channel == args.channel:
+    if plan is not None and plan.through_mitm and plan.leg_channel == args.channel:
         raise UsageError(f"the leg's channel must differ from the controller's --channel {args.channel}")
     sim = getattr(args, "clock", "wall") == "sim"
     if sim and plan is not None and plan.kind == "kill":
@@ -107,7 +107,7 @@ def main_hil(args) -> int:
         raise UsageError("--grace-s is the plant's wait in simulated time: it needs --clock sim")
     try:
         place = where(args.where, args.channel)
-        if plan is not None and place == "native" and not native_vcan(plan.leg_channel):
+        if plan is not None and plan.through_mitm and place == "native" and not native_vcan(plan.leg_channel):
             if args.where != "auto" or current_profile().uml:
                 raise VcanUnavailable(f"the fault options need a second channel {plan.leg_channel!r}: "
                                       f"{instruction(plan.leg_channel, uml_considered=False)}")

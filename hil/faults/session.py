@@ -1,11 +1,15 @@
 """Fault injection in hardware-in-the-loop sessions, and the HIL rows of the fault matrix.
 
-A session with any fault option (:class:`FaultPlan`) puts the controller on one channel (vcan0)
-and the firmware-sim process on another (vcan1), with the man-in-the-middle node
-(:mod:`hil.faults.mitm`) forwarding between them through its per-direction fault injectors. The bus
-recorder records vcan0 (what the controller sees and sends); a :class:`hil.session.legwatch.
-HeartbeatWatcher` watches the axes' Heartbeats on vcan1, as the leg sends them. Events, at trial
-``K``, ``event_after_s`` (1 s) after the trial was requested:
+A session with a rate fault or a silence (:class:`FaultPlan`) puts the controller on one channel
+(vcan0) and the firmware-sim process on another (vcan1), with the man-in-the-middle node
+(:mod:`hil.faults.mitm`) forwarding between them through its per-direction fault injectors. A kill
+alone needs no node between them (:attr:`FaultPlan.through_mitm`): the leg stays on the
+controller's channel, and no forwarding process stands between the last command and the drivers'
+watchdogs. (Inside User-Mode Linux the node was a fourth busy process on the one virtual CPU; it
+stalled for 0.4-1.2 s there in December 2026 and so tripped the watchdogs before the kill came.)
+The bus recorder records vcan0 (what the controller sees and sends); a :class:`hil.session.legwatch.
+HeartbeatWatcher` watches the axes' Heartbeats on the leg's channel, as the leg sends them. Events,
+at trial ``K``, ``event_after_s`` (1 s) after the trial was requested:
 
 - ``kill``: SIGKILL to the controller process. ``safe_state_ms``: from the kill to the first
   moment every axis's Heartbeat on vcan1 reports IDLE; the bound is the drivers' watchdog
@@ -64,9 +68,9 @@ SAFE_WAIT_S = 3.0  # after the bound, how much longer to wait for every axis in 
 # hil.profile.Profile.late_allowance_s (:func:`safe_state_stalls_s`), never a fixed wall-clock
 # budget. The drivers' watchdog and heartbeat run on the plant's simulated time, paced to the wall
 # clock: when the plant's process is not scheduled, both come late by that stall (its longest
-# period). The last command before a kill, and the controller's IDLE after a silence, pass
-# through the man-in-the-middle node, late by its longest busy gap; after a silence the
-# controller's own loop decides, late by its longest period. The bound itself is not widened:
+# period). The controller's IDLE after a silence (and the last command before a kill with rate
+# faults) passes through the man-in-the-middle node, late by its longest busy gap; after a silence
+# the controller's own loop decides, late by its longest period. The bound itself is not widened:
 # ``within_bound`` reports against bound + tolerance; ``safe_state_ms``, ``bound_ms``,
 # ``tolerance_ms`` and the ``stalls_ms`` behind it are all in the metrics.
 
@@ -102,7 +106,8 @@ class FaultPlan:
         kill_at_trial: the trial (0-based) in which the controller is killed (SIGKILL).
         event_after_s: how long into that trial the event happens [s]; default 1.0.
         seed: the mitm's fault seed.
-        leg_channel: the leg's channel; default vcan1.
+        leg_channel: the leg's channel behind the mitm node; default vcan1 (a kill alone: unused,
+            :attr:`through_mitm`).
     """
 
     to_leg: str = ""
@@ -138,6 +143,13 @@ class FaultPlan:
         if self.silence_at_trial is not None:
             return "silence"
         return "rate"
+
+    @property
+    def through_mitm(self) -> bool:
+        """Does the session need the man-in-the-middle node between the controller and the leg? A
+        rate fault or a silence does; a kill alone does not (the module docstring)."""
+        return (self.kind != "kill" or FaultSpec.parse(self.to_leg).active
+                or FaultSpec.parse(self.from_leg).active)
 
     @property
     def event_trial(self) -> int | None:
@@ -184,9 +196,10 @@ class FaultSession:
 
     def __init__(self, plan: FaultPlan, channel: str, work: Path, ctl_config: "ControllerConfig",
                  env: dict[str, str], say: Callable[[str], None] = lambda text: None, clock: str = "wall") -> None:
-        if plan.leg_channel == channel:
+        if plan.through_mitm and plan.leg_channel == channel:
             raise ValueError(f"the leg's channel must differ from the controller's ({channel})")
         self.plan = plan
+        self.leg_channel = plan.leg_channel if plan.through_mitm else channel  # the firmware-sim process's
         self.clock = clock  # "sim": the mitm runs on the simulated time of the syncs it forwards
         self.channel = channel
         self.work = work
@@ -209,11 +222,14 @@ class FaultSession:
 
     # -- processes --------------------------------------------------------------------------
     def start(self, timeout_s: float = 30.0) -> None:
-        """Start the heartbeat watcher on the leg's channel and the mitm node; wait until the
-        mitm has both channels open."""
+        """Start the heartbeat watcher on the leg's channel and, if the plan needs it, the mitm
+        node; wait until the mitm has both channels open."""
         plan = self.plan
-        self.watcher = HeartbeatWatcher(plan.leg_channel, self.axes)
+        self.watcher = HeartbeatWatcher(self.leg_channel, self.axes)
         self.watcher.start()
+        if not plan.through_mitm:
+            self.say(f"no mitm node: the leg shares {self.channel} with the controller")
+            return
         ready = self.work / "mitm.ready"
         ready.unlink(missing_ok=True)
         cmd = [sys.executable, "-m", "hil.cli", "mitm", "--controller-channel", self.channel,
@@ -251,6 +267,8 @@ class FaultSession:
             self._mitm_log.close()
         if self.watcher is not None:
             self.watcher.stop()
+        if not self.plan.through_mitm:
+            return
         from hil.faults.mitm import read_counts
 
         try:
@@ -327,8 +345,8 @@ class FaultSession:
             "specs": {"to_leg": FaultSpec.parse(plan.to_leg).describe(),
                       "from_leg": FaultSpec.parse(plan.from_leg).describe()},
             "at_trial": plan.event_trial,
-            "channels": {"controller": self.channel, "leg": plan.leg_channel},
-            "mitm": self.mitm_summary,
+            "channels": {"controller": self.channel, "leg": self.leg_channel},
+            "mitm": self.mitm_summary if plan.through_mitm else None,
             "mitm_exit_code": self.rc_mitm,
             "leg_heartbeats": {"seen": len(beats), "error": None if self.watcher is None else self.watcher.error},
             "watchdog_trips": bye.get("watchdog_trips"),
@@ -339,7 +357,7 @@ class FaultSession:
         if plan.kind == "rate":
             sec["controller_exit_expected"] = rc_controller == 0
             return sec
-        stalls = safe_state_stalls_s(plan.kind, bye, final, self.mitm_summary)
+        stalls = safe_state_stalls_s(plan.kind, bye, final, self.mitm_summary if plan.through_mitm else None)
         tolerance = profile_named(where).late_allowance_s(*stalls.values()) * 1e3
         hb = safe_state(beats, list(self.axes), self.t_event_unix) if self.t_event_unix is not None else {}
         ms = hb.get("safe_state_ms")
@@ -385,14 +403,16 @@ def safe_state_stalls_s(kind: str, bye: dict[str, Any], final: dict[str, Any],
                         mitm: dict[str, Any] | None) -> dict[str, float | None]:
     """The longest stall [s] measured in the session of each process on the safe state's path
     after a ``kind`` event (None: that process did not report): the plant (its pacer's longest
-    period, from firmware-sim's ``bye``), the man-in-the-middle node (its longest busy gap), and
-    after a silence the controller (its loop's longest period, from its final record)."""
+    period, from firmware-sim's ``bye``), the man-in-the-middle node if one ran (``mitm``: its
+    counts, or None for a session without the node; its longest busy gap), and after a silence
+    the controller (its loop's longest period, from its final record)."""
 
     def seconds(value: Any, scale: float) -> float | None:
         return float(value) * scale if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
-    out = {"plant": seconds((bye.get("pacing") or {}).get("max_period_us"), 1e-6),
-           "mitm": seconds(((mitm or {}).get("pacing") or {}).get("max_gap_ms"), 1e-3)}
+    out = {"plant": seconds((bye.get("pacing") or {}).get("max_period_us"), 1e-6)}
+    if mitm is not None:
+        out["mitm"] = seconds((mitm.get("pacing") or {}).get("max_gap_ms"), 1e-3)
     if kind == "silence":
         out["controller"] = seconds(final.get("max_period_us"), 1e-6)
     return out
@@ -442,7 +462,7 @@ def fault_problems(m: dict[str, Any], trials: int) -> list[str]:
     kill, fewer trials after an event) are not problems."""
     f, h = m["fault"], m["hil"]
     problems = []
-    if f.get("mitm_exit_code") != 0:
+    if f.get("mitm") is not None and f.get("mitm_exit_code") != 0:
         problems.append(f"mitm node exit code {f.get('mitm_exit_code')}")
     if not f.get("controller_exit_expected"):
         problems.append(f"controller exit code {f.get('controller_exit_code')}")
@@ -469,7 +489,7 @@ def fault_problems(m: dict[str, Any], trials: int) -> list[str]:
 def fault_summary(m: dict[str, Any]) -> str:
     """One line on the fault side of a session, for the terminal."""
     f = m["fault"]
-    mitm = f.get("mitm", {})
+    mitm = f.get("mitm")
 
     def counts(direction: str) -> str:
         c = mitm.get(direction) or {}
@@ -477,7 +497,8 @@ def fault_summary(m: dict[str, Any]) -> str:
         return f"{c.get('frames_in')} in, {c.get('forwarded')} out" + (f" ({faults})" if faults else "") + \
             (f", {c['silenced']} silenced" if c.get("silenced") else "")
 
-    text = f"hil faults: mitm to the leg {counts('to_leg')}; from it {counts('from_leg')}"
+    text = ("hil faults: no mitm node (the leg on the controller's channel)" if mitm is None else
+            f"hil faults: mitm to the leg {counts('to_leg')}; from it {counts('from_leg')}")
     if f["kind"] != "rate":
         ms, drv = f.get("safe_state_ms"), f.get("driver_safe_state_ms")
         text += (f"; {f['kind']} in trial {f['at_trial'] + 1}: every axis's heartbeat IDLE after "
@@ -577,7 +598,7 @@ def run_hil_fault(kind: str, rate: float | None, seed: int, out: str | Path, tri
         "trials_completed": h.get("trials_completed"),
         "stopped_at_trial": f.get("at_trial") if event else None,
         "fault_cause": h.get("fault_cause"),
-        "mitm": {k: f.get("mitm", {}).get(k) for k in ("to_leg", "from_leg", "silence")},
+        "mitm": None if f.get("mitm") is None else {k: f["mitm"].get(k) for k in ("to_leg", "from_leg", "silence")},
         "watchdog_trips": h.get("watchdog_trips"),
         "wall_s": time.time() - t0,
         "details": str(path),

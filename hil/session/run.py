@@ -200,8 +200,9 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
                 timeout_s: float | None = None, quiet: bool = False, where: str = "native",
                 faults: FaultPlan | None = None) -> dict[str, Any]:
     """One session (see the module docstring). ``faults``: the controller stays on ``channel``,
-    the firmware-sim process goes to ``faults.leg_channel``, with the mitm node between them and
-    the plan's event (:mod:`hil.faults.session`); ``metrics.json`` then has a ``fault`` section."""
+    the firmware-sim process goes to ``faults.leg_channel``, with the mitm node between them (a
+    kill alone: no node, the leg on ``channel``), and the plan's event (:mod:`hil.faults.session`);
+    ``metrics.json`` then has a ``fault`` section."""
     from controller.settings.file import write_config
     from controller.settings.daemon import session_config
     from hil.experiments.learn import LearnConfig, summarize
@@ -246,7 +247,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
             fs.stop()
             recorder.stop()
             raise
-    fw_bus_args = bus_args if faults is None else ["--interface", "socketcan", "--channel", faults.leg_channel]
+    fw_bus_args = bus_args if fs is None else ["--interface", "socketcan", "--channel", fs.leg_channel]
     fw_log = open(work / "firmware.log", "w")
     ctl_log = open(work / "controller.log", "w")
     firmware = subprocess.Popen(
@@ -380,7 +381,7 @@ def run_session(*, trials: int, seed: int, out: str | Path, channel: str = "vcan
         },
     }
     if fs is not None:
-        metrics["hil"]["leg_channel"] = faults.leg_channel
+        metrics["hil"]["leg_channel"] = fs.leg_channel
         metrics["fault"] = fs.section(where=where, bye=bye, final=final, rc_controller=rc_controller,
                                       recorder=recorder, out=out)
     write_json_atomic(out / "metrics.json", metrics, indent=1)

@@ -183,11 +183,12 @@ def test_the_counts_file_is_stamped_and_read_back_without_the_stamp(tmp_path):
 
 
 # -- the safe state's tolerance: the stalls measured in the session, never a fixed budget ----------
-def _session(tmp_path, kind: str = "kill"):
+def _session(tmp_path, kind: str = "kill", to_leg: str = ""):
     from controller.config import ControllerConfig
     from hil.faults.session import FaultSession
 
-    plan = FaultPlan(kill_at_trial=1) if kind == "kill" else FaultPlan(silence_node=0, silence_at_trial=1)
+    plan = (FaultPlan(kill_at_trial=1, to_leg=to_leg) if kind == "kill"
+            else FaultPlan(silence_node=0, silence_at_trial=1))
     fs = FaultSession(plan, "vcan0", tmp_path, ControllerConfig(), {})
     fs.watchdog_s, fs.heartbeat_s = 0.1, 0.1
     fs.t_event_unix, fs.t_event_mono = 1000.0, 50.0
@@ -227,7 +228,7 @@ def test_a_kills_safe_state_is_in_time_within_the_stalls_measured_on_its_path(tm
     from hil.faults.session import fault_problems
     from hil.profile import NATIVE
 
-    fs = _session(tmp_path)
+    fs = _session(tmp_path, to_leg="drop=0.05")  # a kill with frame loss: through the mitm
     fs.watcher = _Watcher(_idle_after(230.0))  # 30 ms past the 200 ms bound
     sec = _section(fs, plant_us=28_000.0, mitm_ms=2.0)  # the plant stalled 28 ms, the mitm 2 ms
     assert sec["bound_ms"] == pytest.approx(200.0) and sec["safe_state_ms"] == pytest.approx(230.0)
@@ -240,12 +241,36 @@ def test_a_kills_safe_state_is_in_time_within_the_stalls_measured_on_its_path(tm
     late.update(mitm_exit_code=0, controller_exit_expected=True, weights={"exists": False})
     problems = fault_problems(m, 3)
     assert len(problems) == 1 and "over the bound of 200 ms + 8 ms" in problems[0] and "plant" in problems[0]
+    late.update(mitm_exit_code=1)
+    assert any("mitm node exit code 1" in p for p in fault_problems(m, 3))
+
+
+def test_a_kill_alone_runs_without_the_mitm_the_leg_on_the_controllers_channel(tmp_path):
+    """No forwarding process between the last command and the watchdogs: the plant's stall is
+    the only one on the path, and no mitm exit code is asked for."""
+    from hil.faults.session import fault_problems, fault_summary
+
+    assert not FaultPlan(kill_at_trial=1).through_mitm
+    assert FaultPlan(kill_at_trial=1, from_leg="drop=0.05").through_mitm
+    assert FaultPlan(silence_node=0, silence_at_trial=1).through_mitm and FaultPlan(to_leg="drop=0.05").through_mitm
+    fs = _session(tmp_path)
+    assert fs.leg_channel == "vcan0"
+    fs.watcher = _Watcher(_idle_after(190.0))
+    sec = _section(fs, plant_us=28_000.0, mitm_ms=None)
+    assert sec["mitm"] is None and sec["channels"] == {"controller": "vcan0", "leg": "vcan0"}
+    assert sec["stalls_ms"] == pytest.approx({"plant": 28.0})
+    assert sec["tolerance_ms"] == pytest.approx(29.0) and sec["within_bound"]
+    m = {"fault": sec, "hil": {"error": None, "trials_completed": 1, "exit_codes": {"firmware_sim": 0}}}
+    sec.update(controller_exit_expected=True, weights={"exists": False})
+    assert sec["mitm_exit_code"] is None and fault_problems(m, 3) == []
+    assert fault_summary(m).startswith("hil faults: no mitm node")
+    assert _session(tmp_path, to_leg="drop=0.05").leg_channel == "vcan1"
 
 
 def test_a_stall_not_measured_counts_as_the_platforms_fallback_and_a_silence_counts_the_controller(tmp_path):
     from hil.profile import NATIVE, UML
 
-    fs = _session(tmp_path)
+    fs = _session(tmp_path, to_leg="drop=0.05")
     fs.watcher = _Watcher(_idle_after(210.0))
     sec = _section(fs, plant_us=None, mitm_ms=2.0)  # firmware-sim said no bye
     assert sec["stalls_ms"]["plant"] is None
