@@ -122,7 +122,9 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
     the foot there, and a shorter step before only moves the gap's take-off farther out; the
     step that helps is a longer one, the take-off nearer, which is what the phase's "extension"
     asks. So the placement moves the weights within the spread's reach of the last step's gate
-    (every row), and the weights beyond it learn the reflex's own kind. The tuning seeds' late
+    (every row), and the weights beyond it learn the reflex's own kind: a kind per cell, set
+    before any other rule reads it (``spread_keeps_branch`` chooses each cell's traces by the
+    kind that cell learns). The tuning seeds' late
     crossings came down on top after such an early lesson had spread "shorter" to the step
     before's cells (docs/improved.md, "Round 10", "Round 11"): on seeds 44-69 no mistake after
     trial 50 on 23/26 against 20/26, on 70-99 23/30 against 23/30.
