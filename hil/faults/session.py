@@ -12,7 +12,7 @@ HeartbeatWatcher` watches the axes' Heartbeats on the leg's channel, as the leg 
 at trial ``K``, ``event_after_s`` (1 s) after the trial was requested:
 
 - ``kill``: SIGKILL to the controller process. ``safe_state_ms``: from the kill to the first
-  moment every axis's Heartbeat on vcan1 reports IDLE; the bound is the drivers' watchdog
+  moment every axis's Heartbeat on the leg's channel reports IDLE; the bound is the drivers' watchdog
   timeout plus one heartbeat period (0.1 + 0.1 s).
 - ``silence``: the mitm drops every frame the node sends (SIGUSR1). The controller's supervisor
   calls the node lost after ``silence_periods`` heartbeat periods without a valid frame from it
@@ -339,6 +339,7 @@ class FaultSession:
         """The ``fault`` section of ``metrics.json``."""
         plan = self.plan
         beats = self.watcher.snapshot() if self.watcher is not None else []
+        mitm = self.mitm_summary if plan.through_mitm else None  # None: no node ran
         sec: dict[str, Any] = {
             "kind": plan.kind,
             "plan": asdict(plan),
@@ -346,7 +347,7 @@ class FaultSession:
                       "from_leg": FaultSpec.parse(plan.from_leg).describe()},
             "at_trial": plan.event_trial,
             "channels": {"controller": self.channel, "leg": self.leg_channel},
-            "mitm": self.mitm_summary if plan.through_mitm else None,
+            "mitm": mitm,
             "mitm_exit_code": self.rc_mitm,
             "leg_heartbeats": {"seen": len(beats), "error": None if self.watcher is None else self.watcher.error},
             "watchdog_trips": bye.get("watchdog_trips"),
@@ -357,7 +358,7 @@ class FaultSession:
         if plan.kind == "rate":
             sec["controller_exit_expected"] = rc_controller == 0
             return sec
-        stalls = safe_state_stalls_s(plan.kind, bye, final, self.mitm_summary if plan.through_mitm else None)
+        stalls = safe_state_stalls_s(plan.kind, bye, final, mitm)
         tolerance = profile_named(where).late_allowance_s(*stalls.values()) * 1e3
         hb = safe_state(beats, list(self.axes), self.t_event_unix) if self.t_event_unix is not None else {}
         ms = hb.get("safe_state_ms")
