@@ -148,6 +148,16 @@ rule 4's placement stops there). On tuning seeds 44-69 the tucked crossings kept
 near 0 with either, but the late take-offs lay farther out, at the crossing's far edge, and
 more late mistakes came (docs/improved.md, "Round 10").
 
+One of round 13, off by default: ``blend_readout`` (rule 13), the readout between two cells.
+The memory stays one-hot, but the burst reads the gated cell's weight blended with its nearer
+neighbour's by where the gated range lies between the two cells' centres (at the centre the cell
+alone, at its edge half each), when both weights are on one branch (one sign, neither untrained)
+and on one side of the context's lift range: a one-hot readout steps the stride by a whole cell
+(4 cm), about the width of a tall block's tucked take-off window (docs/leg_limits.md); across two
+branches a stride between them is the gap, so there the cell alone decides. On the tuning seeds
+it helped the tall obstacles and cost the default conditions' late mistakes and the plant slower
+than believed (docs/improved.md, "Round 13").
+
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
 to be tried, and off by default (0): with the spread it cost late mistakes on the tuning seeds.
@@ -233,6 +243,9 @@ class ImprovedConfig:
                                       "moves further along its own sign whatever the reflex asks (0: off; round 8)")
     commit_flip: bool = setting(True, doc="with commit_earlier_s, such a weight at flip_at of its bound, "
                                 "gated in the last few steps, turns to the other branch (its negative) at once")
+    blend_readout: bool = setting(False, doc="the burst reads the gated cell's weight blended with its nearer "
+                                  "neighbour's by where the gated range lies between their centres, when both "
+                                  "weights are on one branch (one sign) (rule 13; round 13, not kept)")
     learning: bool = setting(True, doc="false freezes the weights and the lifts")
 
     def __post_init__(self) -> None:
@@ -300,16 +313,17 @@ class ImprovedPremotor:
             raise ValueError(f"ground_speed_m_s must be a finite speed > 0 m/s, got {ground_speed_m_s!r}")
         if not (math.isfinite(tucked_extra_s) and tucked_extra_s >= 0.0):
             raise ValueError(f"tucked_extra_s must be a finite burst length >= 0 s, got {tucked_extra_s!r}")
-        if ((config.spread_at_lift_edge or config.too_close_at_lift_edge)
+        if ((config.spread_at_lift_edge or config.too_close_at_lift_edge or config.blend_readout)
                 and not (cell_width_m is not None and cell_width_m > 0.0)):
-            raise ValueError(f"improved.spread_at_lift_edge and improved.too_close_at_lift_edge need the encoder's "
-                             f"cell width > 0 m, got {cell_width_m!r}")
+            raise ValueError(f"improved.spread_at_lift_edge, improved.too_close_at_lift_edge and "
+                             f"improved.blend_readout need the encoder's cell width > 0 m, got {cell_width_m!r}")
         self.config = config
         self.base_burst_s = base_burst_s
         self._cell_width_m = cell_width_m
         self._tuck = tuck
         self._tucked_extra_s = tucked_extra_s
         self._extra_s = 0.0  # this step cycle's lengthening for a tucked swing
+        self._blend: tuple[int, float] | None = None  # (neighbour, its share) of the gated weight (rule 13)
         self.n_contexts, self.n_cells = n_contexts, n_cells
         self.weights = np.zeros((n_contexts, n_cells))
         self.trained = np.zeros((n_contexts, n_cells))  # the trace each synapse was trained with so far
@@ -362,6 +376,7 @@ class ImprovedPremotor:
     def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
         row = self._row(context)
         self.memory.gate(cell, now_s)
+        self._blend = None
         self.context = row if cell is not None else None
         self._gates.append(_Gate(cell, self.context))  # lift_amplitude, called after this, fills in the rest
         if cell is None:
@@ -409,7 +424,33 @@ class ImprovedPremotor:
 
     def gated_weight(self) -> float:
         cell = self.memory.cell
-        return 0.0 if cell is None or self.context is None else float(self.weights[self.context, cell])
+        if cell is None or self.context is None:
+            return 0.0
+        held = float(self.weights[self.context, cell])
+        if self._blend is None:
+            return held
+        neighbour, share = self._blend
+        other = float(self.weights[self.context, neighbour])
+        if held * other <= 0.0:  # another branch (or none yet): never a stride between two branches
+            return held
+        return (1.0 - share) * held + share * other
+
+    def _set_blend(self, gated_range_m: float | None) -> None:
+        """Rule 13: the gated cell's nearer neighbour and its share of the readout, by where
+        ``gated_range_m`` lies between the two cells' centres (0 at the gated cell's centre, 0.5
+        at its edge)."""
+        cell = self.memory.cell
+        self._blend = None
+        if cell is None or gated_range_m is None or not math.isfinite(gated_range_m):
+            return
+        offset = gated_range_m / self._cell_width_m - (cell + 0.5)  # -0.5..0.5 within the cell
+        neighbour = cell + 1 if offset > 0.0 else cell - 1
+        if not (0 <= neighbour < self.n_cells and -0.5 <= offset <= 0.5):
+            return
+        row = self.context if self.context is not None else 0
+        within = self._within_lift_range(row)
+        if within[neighbour] == within[cell]:  # across the lift's edge: the other swing, another decision
+            self._blend = (neighbour, abs(offset))
 
     def modulation_s(self, now_s: float) -> float:
         cell = self.memory.cell
@@ -532,7 +573,11 @@ class ImprovedPremotor:
         return np.arange(self.n_cells) + 0.5 < self._lift_limit_m(row) / self._cell_width_m
 
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
+        """The lift of the step cycle just gated (called by the loop at each gate, after
+        :meth:`on_step_onset`, with the gated range): also where rule 13 learns the gated range."""
         self._extra_s = 0.0
+        if self.config.blend_readout:
+            self._set_blend(gated_range_m)
         row = self._row(context)
         limit = self._lift_limit_m(row)
         if gated_range_m is None or not gated_range_m < limit:
