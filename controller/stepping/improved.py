@@ -152,11 +152,14 @@ One of round 13, off by default: ``blend_readout`` (rule 13), the readout betwee
 The memory stays one-hot, but the burst reads the gated cell's weight blended with its nearer
 neighbour's by where the gated range lies between the two cells' centres (at the centre the cell
 alone, at its edge half each), when both weights are on one branch (one sign, neither untrained)
-and on one side of the context's lift range: a one-hot readout steps the stride by a whole cell
-(4 cm), about the width of a tall block's tucked take-off window (docs/leg_limits.md); across two
-branches a stride between them is the gap, so there the cell alone decides. On the tuning seeds
-it helped the tall obstacles and cost the default conditions' late mistakes and the plant slower
-than believed (docs/improved.md, "Round 13").
+and on one side of the context's lift range, in the contexts that learn their lift only (not
+those that start tucked, rule 9): a one-hot readout steps the stride by a whole cell (4 cm), about
+the width of a tall block's tucked take-off window (docs/leg_limits.md); across two branches a
+stride between them is the gap, so there the cell alone decides. On the tuning seeds, blended in
+every context, it helped the tall obstacles and cost the default conditions' late mistakes and
+the plant slower than believed; in the tall contexts only it kept most of the tall obstacles'
+gain (docs/improved.md, "Round 13"). Not yet a default: the held-out sweeps have not been run
+with it.
 
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
@@ -245,7 +248,8 @@ class ImprovedConfig:
                                 "gated in the last few steps, turns to the other branch (its negative) at once")
     blend_readout: bool = setting(False, doc="the burst reads the gated cell's weight blended with its nearer "
                                   "neighbour's by where the gated range lies between their centres, when both "
-                                  "weights are on one branch (one sign) (rule 13; round 13, not kept)")
+                                  "weights are on one branch (one sign), in the contexts that learn their lift "
+                                  "(rule 13; round 13, not yet a default)")
     learning: bool = setting(True, doc="false freezes the weights and the lifts")
 
     def __post_init__(self) -> None:
@@ -448,6 +452,8 @@ class ImprovedPremotor:
         if not (0 <= neighbour < self.n_cells and -0.5 <= offset <= 0.5):
             return
         row = self.context if self.context is not None else 0
+        if self._tucked_rows[row]:  # the low contexts' one-hot map of two branches (rules 8, 9)
+            return
         within = self._within_lift_range(row)
         if within[neighbour] == within[cell]:  # across the lift's edge: the other swing, another decision
             self._blend = (neighbour, abs(offset))

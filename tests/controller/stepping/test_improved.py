@@ -547,14 +547,16 @@ def test_too_close_last_step_sets_each_cells_kind_before_the_branch_is_chosen():
 def test_with_blend_readout_the_burst_reads_the_nearer_neighbour_by_the_gated_range():
     """Rule 13: cell 15 of 0.04 m spans 0.60-0.64 m; gated at 0.63 m the readout is 0.75 of cell
     15's weight and 0.25 of cell 16's (one branch); at 0.61 m, of cell 14's. Not across a branch
-    (the signs differ, or a neighbour untrained), not across the lift's edge, and off by default."""
-    def gated(blend: bool, range_m: float, w14: float, w16: float, cell: int = 15, w: float = 0.2) -> float:
+    (the signs differ, or a neighbour untrained), not across the lift's edge, not in the contexts
+    that start tucked, and off by default."""
+    def gated(blend: bool, range_m: float, w14: float, w16: float, cell: int = 15, w: float = 0.2,
+              row: int = 2) -> float:
         config = ImprovedConfig(tucked_contexts=2, lift_max=3.44, blend_readout=blend)
         p = ImprovedPremotor(4, 28, BASE, config, cell_width_m=0.04)
-        p.weights[2, cell] = w
-        p.weights[2, cell - 1], p.weights[2, cell + 1] = w14, w16
-        p.on_step_onset(0.0, cell, context=2)
-        p.lift_amplitude(range_m, 2)
+        p.weights[row, cell] = w
+        p.weights[row, cell - 1], p.weights[row, cell + 1] = w14, w16
+        p.on_step_onset(0.0, cell, context=row)
+        p.lift_amplitude(range_m, row)
         return p.gated_weight()
 
     assert gated(True, 0.63, 0.0, 0.4) == pytest.approx(0.75 * 0.2 + 0.25 * 0.4)
@@ -563,6 +565,7 @@ def test_with_blend_readout_the_burst_reads_the_nearer_neighbour_by_the_gated_ra
     assert gated(True, 0.63, 0.0, -0.4) == pytest.approx(0.2)  # the other branch: never between
     assert gated(True, 0.63, 0.0, 0.0) == pytest.approx(0.2)  # an untrained neighbour: no branch yet
     assert gated(False, 0.63, 0.0, 0.4) == pytest.approx(0.2)  # off: one-hot
+    assert gated(True, 0.63, 0.0, 0.4, row=1) == pytest.approx(0.2)  # a context that starts tucked: one-hot
     # row 2 (a context that learns its lift) lifts within 0.40 m: cells 0-9; cell 9 and 10 straddle it
     assert gated(True, 0.399, 0.0, 0.4, cell=9) == pytest.approx(0.2)
     assert gated(True, 0.37, 0.4, 0.0, cell=9) == pytest.approx(0.75 * 0.2 + 0.25 * 0.4)
