@@ -480,7 +480,7 @@ def test_with_spread_at_lift_edge_the_credit_stops_at_the_contexts_lift_range():
     assert within[1, 1] > 0.0 and within[1, 6] > 0.0 and within[1, 7:].sum() == 0.0
     assert traces(False, 8)[1, 4] > 0.0  # the rule off: across the edge as before
     with pytest.raises(ValueError, match="cell width"):
-        ImprovedPremotor(4, 28, BASE, ImprovedConfig(spread_at_lift_edge=True))
+        ImprovedPremotor(4, 28, BASE, ImprovedConfig(spread_at_lift_edge=True), cell_width_m=None)
 
 
 def test_with_too_close_at_lift_edge_rule_4_moves_only_the_gate_befores_side_of_the_lift_range():
@@ -548,7 +548,7 @@ def test_with_blend_readout_the_burst_reads_the_nearer_neighbour_by_the_gated_ra
     """Rule 13: cell 15 of 0.04 m spans 0.60-0.64 m; gated at 0.63 m the readout is 0.75 of cell
     15's weight and 0.25 of cell 16's (one branch); at 0.61 m, of cell 14's. Not across a branch
     (the signs differ, or a neighbour untrained), not across the lift's edge, not in the contexts
-    that start tucked, and off by default."""
+    that start tucked, and on by default."""
     def gated(blend: bool, range_m: float, w14: float, w16: float, cell: int = 15, w: float = 0.2,
               row: int = 2) -> float:
         config = ImprovedConfig(tucked_contexts=2, lift_max=3.44, blend_readout=blend)
@@ -569,5 +569,6 @@ def test_with_blend_readout_the_burst_reads_the_nearer_neighbour_by_the_gated_ra
     # row 2 (a context that learns its lift) lifts within 0.40 m: cells 0-9; cell 9 and 10 straddle it
     assert gated(True, 0.399, 0.0, 0.4, cell=9) == pytest.approx(0.2)
     assert gated(True, 0.37, 0.4, 0.0, cell=9) == pytest.approx(0.75 * 0.2 + 0.25 * 0.4)
+    assert ImprovedConfig().blend_readout  # a default since round 14
     with pytest.raises(ValueError, match="cell width"):
-        ImprovedPremotor(4, 28, BASE, ImprovedConfig(blend_readout=True))
+        ImprovedPremotor(4, 28, BASE, ImprovedConfig(blend_readout=True), cell_width_m=None)
