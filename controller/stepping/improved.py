@@ -307,7 +307,9 @@ class ImprovedPremotor:
     ``too_close_at_lift_edge`` place the lift range's edge among the cells by it, and
     ``blend_readout`` where a gated range lies within its cell.
     Attributes read by experiments: ``weights`` (n_contexts x n_cells) [s], ``lifts`` (one
-    amplitude per context), ``lift_raises`` (how many reflexes raised a lift).
+    amplitude per context), ``lift_raises`` (how many reflexes raised a lift), ``blended_steps``
+    (how many step cycles rule 13's blend changed the burst in: 0, and every burst was the
+    one-hot readout's).
     """
 
     def __init__(self, n_contexts: int, n_cells: int, base_burst_s: float,
@@ -331,6 +333,8 @@ class ImprovedPremotor:
         self._tucked_extra_s = tucked_extra_s
         self._extra_s = 0.0  # this step cycle's lengthening for a tucked swing
         self._blend: tuple[int, float] | None = None  # (neighbour, its share) of the gated weight (rule 13)
+        self.blended_steps = 0
+        self._blended_this_step = False
         self.n_contexts, self.n_cells = n_contexts, n_cells
         self.weights = np.zeros((n_contexts, n_cells))
         self.trained = np.zeros((n_contexts, n_cells))  # the trace each synapse was trained with so far
@@ -384,6 +388,7 @@ class ImprovedPremotor:
         row = self._row(context)
         self.memory.gate(cell, now_s)
         self._blend = None
+        self._blended_this_step = False
         self.context = row if cell is not None else None
         self._gates.append(_Gate(cell, self.context))  # lift_amplitude, called after this, fills in the rest
         if cell is None:
@@ -440,7 +445,11 @@ class ImprovedPremotor:
         other = float(self.weights[self.context, neighbour])
         if held * other <= 0.0:  # another branch (or none yet): never a stride between two branches
             return held
-        return (1.0 - share) * held + share * other
+        blended = (1.0 - share) * held + share * other
+        if blended != held and not self._blended_this_step:
+            self._blended_this_step = True
+            self.blended_steps += 1
+        return blended
 
     def _set_blend(self, gated_range_m: float | None) -> None:
         """Rule 13: the gated cell's nearer neighbour and its share of the readout, by where

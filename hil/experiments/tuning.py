@@ -14,7 +14,8 @@ heard) and a summary line.
 ``--heights`` mixes heights per trial (the last 50 trials' success per height is printed).
 ``--controller SECTION.NAME=VALUE`` changes a setting of the controller the learner runs in (for
 example ``encoder.cell_width_m=0.02``: finer range cells; the sensor board is not changed).
-Each seed's line ends with its successes per 50 trials (``per 50``).
+Each seed's line ends with its successes per 50 trials (``per 50``) and how many step cycles
+rule 13 read blended (``blended``: 0 means the run's records are those of the one-hot readout).
 ``--condition NAME=VALUE`` changes a condition of the run (a :class:`hil.experiments.learn.LearnConfig`
 field: ``rail_speed_m_s``, ``believed_rail_speed_m_s``, ``range_noise_m``, ``range_dropout_prob``,
 ``start_min_m``, ``start_max_m``, ``obstacle_depth_m``), to tune under the changed conditions
@@ -170,6 +171,7 @@ def run_seed(seed: int, trials: int, settings: dict[str, Any], heights: tuple[fl
             "per_50": [sum(success[k:k + 50]) for k in range(0, len(success), 50)], "n_cells": premotor.n_cells,
             "late_by_height": [(t["obstacle_height_m"], t["success"]) for t in records[-50:]],
             "contact_misses": sum(t["contact_misses"] for t in records), "failures": failures,
+            "blended_steps": premotor.blended_steps,
             "conditions": {name: getattr(config, name) for name in CONDITIONS}}
 
 
@@ -243,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     late: dict[float, list[bool]] = defaultdict(list)
     for r in results:
         print(r["seed"], r["trials_to_criterion"], f"{r['success']:.3f}", r["mistakes_after_50"],
-              r["mistakes_after_100"], r["failed"][:15], f"misses {r['contact_misses']}", f"per 50 {r['per_50']}")
+              r["mistakes_after_100"], r["failed"][:15], f"misses {r['contact_misses']}", f"per 50 {r['per_50']}",
+              f"blended {r['blended_steps']}")
         for line in r["failures"]:
             print("  " + line)
         for h, ok in r["late_by_height"]:
@@ -258,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{statistics.mean(r['success'] for r in results):.3f}, no mistake after 100 on "
           f"{sum(r['mistakes_after_100'] == 0 for r in results)}/{n}, after 50 on "
           f"{sum(r['mistakes_after_50'] == 0 for r in results)}/{n}, contact misses "
-          f"{sum(r['contact_misses'] for r in results)}")
+          f"{sum(r['contact_misses'] for r in results)}, blended steps {sum(r['blended_steps'] for r in results)}")
     if len(heights) > 1:
         for h in sorted(late):
             print(f"  height {h:g} m: last 50 trials {sum(late[h])}/{len(late[h])}")

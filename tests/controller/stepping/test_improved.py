@@ -572,3 +572,27 @@ def test_with_blend_readout_the_burst_reads_the_nearer_neighbour_by_the_gated_ra
     assert ImprovedConfig().blend_readout  # a default since round 14
     with pytest.raises(ValueError, match="cell width"):
         ImprovedPremotor(4, 28, BASE, ImprovedConfig(blend_readout=True), cell_width_m=None)
+
+
+def test_blended_steps_counts_the_step_cycles_whose_burst_the_blend_changed_once_each():
+    """``blended_steps`` is how an experiment shows rule 13 never acted (its records then the
+    one-hot readout's): a cycle counts once however often its burst is read, and only when the
+    blend changed it."""
+    p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44), cell_width_m=0.04)
+    p.weights[2, 15], p.weights[2, 16] = 0.2, 0.4
+
+    def step(range_m: float, reads: int = 3) -> None:
+        p.on_step_onset(0.0, 15, context=2)
+        p.lift_amplitude(range_m, 2)
+        for _ in range(reads):
+            p.gated_weight()
+
+    step(0.62)  # at the cell's centre: the cell alone
+    assert p.blended_steps == 0
+    step(0.63)
+    assert p.blended_steps == 1  # three reads, one cycle
+    step(0.63)
+    assert p.blended_steps == 2
+    p.weights[2, 16] = -0.4  # the other branch: one-hot
+    step(0.63)
+    assert p.blended_steps == 2

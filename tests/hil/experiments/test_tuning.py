@@ -33,7 +33,9 @@ def test_one_tuning_run_goes_through_the_whole_stack():
     # one line per failed trial (trial 0 starts from zero weights), none without --failures-after
     assert r["failed"] and len(r["failures"]) == len(r["failed"])
     assert all(line.startswith("seed 3 trial ") for line in r["failures"])
-    assert tuning.run_seed(3, 2, {}, (0.08,))["failures"] == []
+    defaults = tuning.run_seed(3, 2, {}, (0.08,))
+    assert defaults["failures"] == []
+    assert defaults["blended_steps"] == 0  # at 0.08 m the contexts that start tucked read one-hot (rule 13)
 
 
 def test_a_failure_line_names_the_last_gates_with_the_weights_held_as_the_trial_began():
