@@ -20,11 +20,11 @@ rule 13 read blended (``blended``: 0 means the run's records are those of the on
 field: ``rail_speed_m_s``, ``believed_rail_speed_m_s``, ``range_noise_m``, ``range_dropout_prob``,
 ``start_min_m``, ``start_max_m``, ``obstacle_depth_m``), to tune under the changed conditions
 issue 18 names without touching the held-out seeds.
-``--failures-after N`` also prints each failed trial from trial N on: its last four gates (cell,
-gated range, the weight each cell held as the trial began), its last three footfalls (relative to
-the obstacle's near face), its first reflex (kind, cause, phase, in the swing or not), and how
-often its path (its last three gated cells) and its last gated cell were met in the trials before
-it: what docs/improved.md's account of the late mistakes was read from.
+``--failures-after N`` also prints each failed trial from trial N on: its obstacle's height, its
+last four gates (cell, gated range, the weight each cell held as the trial began), its last three
+footfalls (relative to the obstacle's near face), its first reflex (kind, cause, phase, in the
+swing or not), and how often its path (its last three gated cells) and its last gated cell were
+met in the trials before it: what docs/improved.md's account of the late mistakes was read from.
 
 May import what :mod:`hil.experiments` may.
 """
@@ -182,7 +182,7 @@ def path_of(trial: dict[str, Any]) -> tuple[int, ...]:
 
 def describe_failure(seed: int, trial: dict[str, Any], weights: Any,
                      met: list[tuple[tuple[int, ...], bool]] | None = None) -> str:
-    """One line for a failed trial: its last four gates (cell, gated range [m], the weight the
+    """One line for a failed trial: its obstacle's height, its last four gates (cell, gated range [m], the weight the
     cell held as the trial began [s]), last three footfalls [m] and first reflex; with ``met``
     (the earlier trials' paths and successes), how often its path (:func:`path_of`) and its last
     gated cell were met before, and how many of those trials succeeded."""
@@ -196,7 +196,8 @@ def describe_failure(seed: int, trial: dict[str, Any], weights: Any,
     first = trial["reflexes"][0] if trial["reflexes"] else None
     reflex = "none" if first is None else (f"{first['kind']} {first['cause']} phase {first['phase']:.2f} "
                                            f"{'swing' if first['swing'] else 'stance'}")
-    line = (f"seed {seed} trial {trial['index']}: gates (cell@range:weight) {' '.join(gates)}; footfalls "
+    line = (f"seed {seed} trial {trial['index']} ({trial['obstacle_height_m']:g} m): gates (cell@range:weight) "
+            f"{' '.join(gates)}; footfalls "
             f"{' '.join(num(x) for x in trial['footfalls_m'][-3:])}; reflex {reflex}")
     if met is None:
         return line
