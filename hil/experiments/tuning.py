@@ -182,10 +182,11 @@ def path_of(trial: dict[str, Any]) -> tuple[int, ...]:
 
 def describe_failure(seed: int, trial: dict[str, Any], weights: Any,
                      met: list[tuple[tuple[int, ...], bool]] | None = None) -> str:
-    """One line for a failed trial: its obstacle's height, its last four gates (cell, gated range [m], the weight the
-    cell held as the trial began [s]), last three footfalls [m] and first reflex; with ``met``
-    (the earlier trials' paths and successes), how often its path (:func:`path_of`) and its last
-    gated cell were met before, and how many of those trials succeeded."""
+    """One line for a failed trial: its obstacle's height, its last four gates (cell, gated range
+    [m], the weight the cell held as the trial began [s]), last three footfalls [m] and first
+    reflex; with ``met`` (the earlier trials' paths and successes), how often its path
+    (:func:`path_of`) and its last gated cell were met before, and how many of those trials
+    succeeded."""
     def num(x: float | None) -> str:
         return "-" if x is None else f"{x:.3f}"
 

@@ -43,7 +43,8 @@ def test_a_failure_line_names_the_last_gates_with_the_weights_held_as_the_trial_
 
     weights = np.zeros((4, 28))
     weights[1, 17], weights[1, 7] = 0.25, 0.5
-    trial = {"index": 54, "obstacle_height_m": 0.08, "gated_cells": [None, 27, 17, 7, None], "gated_contexts": [None, 1, 1, 1, None],
+    trial = {"index": 54, "obstacle_height_m": 0.08, "gated_cells": [None, 27, 17, 7, None],
+             "gated_contexts": [None, 1, 1, 1, None],
              "gated_range_m": [1.8, 1.458, 1.111, 0.298, None], "footfalls_m": [-1.5, -1.187, -0.769, -0.377],
              "reflexes": [{"kind": "extension", "cause": "foot_on_top", "phase": 0.894, "swing": True, "t_s": 3.0}]}
     assert tuning.describe_failure(46, trial, weights) == (
