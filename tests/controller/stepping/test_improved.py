@@ -15,8 +15,11 @@ BASE = 0.3
 
 
 def premotor(**config) -> ImprovedPremotor:
-    """The rules before round 8 alone unless asked: no context starts tucked, no commitment."""
-    return ImprovedPremotor(4, 28, BASE, ImprovedConfig(**{"tucked_contexts": 0, "commit_earlier_s": 0.0, **config}))
+    """The rules before round 8 alone unless asked: no context starts tucked, no commitment, and
+    none of round 15's rules for the contexts that learn their lift (here every context)."""
+    return ImprovedPremotor(4, 28, BASE, ImprovedConfig(**{"tucked_contexts": 0, "commit_earlier_s": 0.0,
+                                                           "settle_lifting": 0.0, "tucked_keeps_burst": False,
+                                                           **config}))
 
 
 def reflex(kind: str, t_s: float, cause: str = "foot_on_top", swing: bool = True, phase: float = 0.9) -> Reflex:
@@ -596,3 +599,55 @@ def test_blended_steps_counts_the_step_cycles_whose_burst_the_blend_changed_once
     p.weights[2, 16] = -0.4  # the other branch: one-hot
     step(0.63)
     assert p.blended_steps == 2
+
+
+def _tucking(**config) -> ImprovedPremotor:
+    """Contexts 0-1 start tucked, 2-3 learn their lift; the gait tucks above a lift of 3.0."""
+    return ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44, **config),
+                            tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3,
+                            cell_width_m=0.04)
+
+
+def test_with_tucked_keeps_burst_a_tucked_swing_in_a_context_that_learns_its_lift_ignores_a_negative_weight():
+    """Round 15: a tucked crossing shortened by its gate's negative weight comes down on top, and
+    the shortening cannot help the take-off, which the step before sets. Only a tucked swing,
+    only in the contexts that learn their lift, only a negative weight; on by default."""
+    def burst(keep: bool, row: int = 3, lift: float = 3.44, w: float = -0.3, range_m: float = 0.1) -> float:
+        p = _tucking(tucked_keeps_burst=keep, blend_readout=False)
+        p.lifts[row] = lift
+        p.weights[row, 2] = w
+        p.on_step_onset(0.0, 2, context=row)
+        p.lift_amplitude(range_m, row)
+        return p.burst_s(0.0)
+
+    full = BASE + 0.3  # the fully tucked swing's burst
+    assert burst(False) == pytest.approx(full - 0.3)  # off: the weight shortens it, as before
+    assert burst(True) == pytest.approx(full)
+    assert burst(True, w=0.1) == pytest.approx(full + 0.1)  # a positive weight: as before
+    assert burst(True, lift=3.22) == pytest.approx(BASE + 0.15)  # half tucked: at least its own burst
+    assert burst(True, lift=2.8) == pytest.approx(BASE - 0.3)  # not tucked: as before
+    assert burst(True, range_m=0.5) == pytest.approx(BASE - 0.3)  # beyond the lift range: a plain step
+    assert burst(True, row=1) == burst(False, row=1)  # a context that starts tucked: as before
+    assert ImprovedConfig().tucked_keeps_burst  # a default since round 15
+
+
+def test_with_settle_lifting_a_trained_synapse_learns_less_only_in_the_contexts_that_learn_their_lift():
+    """Round 15: a tall block's take-off window is a few centimetres, and a full lesson moves the
+    step before's stride by many: there a synapse's step falls as it is trained,
+    ``learning_rate_s / (1 + trained / settle_lifting)``; the rows that start tucked learn as before."""
+    def lessons(settle: float, row: int) -> list[float]:
+        p = _tucking(settle_lifting=settle, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.0,
+                     learning_rate_s=0.1, flip_at=2.0)
+        changes = []
+        for k in range(3):
+            t = 100.0 * k  # each trace long gone before the next gate
+            before = float(p.weights[row, 15])
+            p.on_step_onset(t, 15, context=row)
+            p.on_reflex("extension", t)  # its own trace 1 at once
+            changes.append(float(p.weights[row, 15]) - before)
+        return changes
+
+    assert lessons(0.0, 3) == pytest.approx([0.1, 0.1, 0.1])  # off: every lesson the full rate
+    assert lessons(1.0, 3) == pytest.approx([0.1, 0.1 / 2.0, 0.1 / 3.0])
+    assert lessons(1.0, 1) == pytest.approx([0.1, 0.1, 0.1])  # a context that starts tucked: as before
+    assert ImprovedConfig().settle_lifting == 1.0  # a default since round 15
