@@ -651,3 +651,22 @@ def test_with_settle_lifting_a_trained_synapse_learns_less_only_in_the_contexts_
     assert lessons(1.0, 3) == pytest.approx([0.1, 0.1 / 2.0, 0.1 / 3.0])
     assert lessons(1.0, 1) == pytest.approx([0.1, 0.1, 0.1])  # a context that starts tucked: as before
     assert ImprovedConfig().settle_lifting == 1.0  # a default since round 15
+
+
+def test_a_contact_in_the_air_late_in_a_lifted_swing_raises_the_lift_by_default():
+    """Round 15: a partly tucked swing whose foot strikes the block late in the swing (coming
+    down on its near edge) was too low as well; with ``lift_phase`` 1.0, the default since, any
+    contact in the air of a lifted swing raises that context's lift. At 0.5 (before) only the
+    first half's did. A contact in stance or a landing on top never does."""
+    def raised(phase: float, lift_phase: float | None = None, cause: str = "foot_in_air",
+               swing: bool = True) -> bool:
+        p = _tucking() if lift_phase is None else _tucking(lift_phase=lift_phase)
+        p.on_step_onset(0.0, 3, context=3)
+        assert p.lift_amplitude(0.13, 3) == pytest.approx(1.9)
+        p.on_contact_reflex(reflex("extension", 0.5, cause=cause, swing=swing, phase=phase))
+        return bool(p.lifts[3] > 1.9)
+
+    assert raised(0.76)
+    assert not raised(0.76, lift_phase=0.5) and raised(0.3, lift_phase=0.5)
+    assert not raised(0.9, cause="foot_on_top") and not raised(0.7, cause="shin", swing=False)
+    assert ImprovedConfig().lift_phase == 1.0
