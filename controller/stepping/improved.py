@@ -41,20 +41,21 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
    weight adds nothing to it), so an extension asked of it is answered by the gates before it
    (the step before, longer: the take-off nearer), which the flip would shorten instead. On the tuning seeds at
    0.20 m the flip drove the step before to its shortest, the take-off ever farther.
-6. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x
-   the step height whatever the obstacle. Here each context has its own amplitude, starting at
-   the hardwired one; a contact reflex in a swing that lifted (the shin or the foot struck
-   something in the air before ``lift_phase``: by default anywhere in the swing, rule 16) means
-   "lift higher": that context's amplitude rises by ``lift_step``, up to ``lift_max``, which the
-   method's builder computes from
-   the leg's joint and torque limits (:func:`controller.motion.reach.max_lift_amplitude`: the
-   highest the foot can be held at all). The amplitude applies, as the hardwired reflex does, to
-   the step cycle whose gate sees the obstacle within ``lift_range_m``. Above a lift the gait
-   tucks its swing (:mod:`controller.motion.gait`: the foot up early, held back, forward and down
-   late), and a tucked swing takes longer: that cycle's burst is lengthened by the tuck fraction
-   of ``tucked_extra_s`` (the builder gives the CPG's longest burst less the base one). This is
-   the motor program of a high step, as the oracle's is (the oracle plans its crossing with the
-   longest burst for a tucked swing); where to take off the learner still learns by its weights.
+6. **The lift, learned.** The hardwired reflex raises the foot by a fixed ``lift_amplitude`` x the
+   step height whatever the obstacle. Here each context has its own amplitude, starting at the
+   hardwired one; a contact reflex in a swing that lifted (the shin or the foot struck something in
+   the air before ``lift_phase``: by default anywhere in the swing, rule 16) means "lift higher":
+   that context's amplitude rises by ``lift_step``, up to ``lift_max``, which the method's builder
+   computes from the leg's joint and torque limits
+   (:func:`controller.motion.reach.max_lift_amplitude`: the highest the foot can be held at all).
+   The amplitude applies, as the hardwired reflex does, to the step cycle whose gate sees the
+   obstacle within ``lift_range_m``. Above a lift the gait tucks its swing
+   (:mod:`controller.motion.gait`: the foot up early, held back, forward and down late), and a
+   tucked swing takes longer: that cycle's burst is lengthened by the tuck fraction of
+   ``tucked_extra_s`` (the builder gives the CPG's longest burst less the base one). This is the
+   motor program of a high step, as the oracle's is (the oracle plans its crossing with the longest
+   burst for a tucked swing); where to take off the learner still learns by its weights.
+
 7. **Credit shared across heights** (``context_share``, 0.5). A gate also activates, by that
    fraction, the traces of the same cells (and their neighbours) in the other height contexts'
    rows, less as those are trained by their own mistakes (``spread_settle``): where to step at a

@@ -8,10 +8,17 @@ import math
 import numpy as np
 import pytest
 
+from controller.motion.gait import GaitConfig, tuck_fraction
 from controller.stepping.improved import ImprovedConfig, ImprovedPremotor
 from controller.stepping.reflexes import Reflex
 
 BASE = 0.3
+
+
+def TUCK(amplitude: float) -> float:
+    """The gait's own tuck fraction at its default settings: the half-sine up to a lift of 3.0,
+    fully tucked at 3.44 (the method's builder hands the learner the same function)."""
+    return tuck_fraction(GaitConfig(), amplitude)
 
 
 def premotor(**config) -> ImprovedPremotor:
@@ -183,7 +190,7 @@ def test_a_tucked_lift_lengthens_that_cycles_burst_by_the_tuck():
     gate that does not lift ends it."""
     p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(lift_amplitude=1.9, lift_max=3.44, lift_range_m=0.4,
                                                      range_follows_tuck=False),
-                         tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3)
+                         tuck=TUCK, tucked_extra_s=0.3)
     p.on_step_onset(0.0, 5, context=3)
     assert p.lift_amplitude(0.3, 3) == 1.9 and p.burst_s(0.0) == pytest.approx(BASE)  # not tucked: as before
     p.lifts[3] = 3.22
@@ -211,13 +218,15 @@ def test_a_tucked_crossing_at_the_bound_is_not_flipped_when_flip_tucked_is_off()
     by the gates before it (the step before, longer), not by the other branch (``flip_tucked``)."""
     def tucked(flip_tucked: bool, lift: float) -> ImprovedPremotor:
         p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(spread_cells=0.0, flip_tucked=flip_tucked, lift_max=3.44),
-                             tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3)
+                             tuck=TUCK, tucked_extra_s=0.3)
         p.lifts[3] = lift
         p.weights[3, 12], p.weights[3, 5] = -0.2, 0.5  # the step before short, the crossing's gate at its bound
         p.on_step_onset(0.0, 12, context=3)
         assert p.lift_amplitude(0.5, 3) == 1.0  # 0.5 m: beyond the lift's range (0.4 m), no tuck
         p.on_step_onset(0.7, 5, context=3)
-        p.lift_amplitude(0.2, 3)  # the crossing: lifts (tucked above 3.0)
+        # the crossing: lifts (tucked above 3.0). Fully tucked, the context lifts within 0.20 m
+        # (range_follows_tuck), so the gate sits inside that edge, not on it
+        assert p.lift_amplitude(0.15, 3) > 1.0
         p.on_contact_reflex(reflex("extension", 1.3, cause="foot_on_top", swing=True, phase=0.84))
         return p
 
@@ -294,7 +303,7 @@ def tuck_premotor(**config) -> ImprovedPremotor:
     settings = {"spread_cells": 0.0, "lift_amplitude": 3.44, "lift_max": 3.44, "lift_range_m": 0.4,
                 "tucked_contexts": 0, "commit_earlier_s": 0.0, "range_follows_tuck": False, **config}
     return ImprovedPremotor(4, 28, BASE, ImprovedConfig(**settings),
-                            tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3)
+                            tuck=TUCK, tucked_extra_s=0.3)
 
 
 def test_a_tucked_swing_landing_on_top_shrinks_that_contexts_lift_range_to_its_gate():
@@ -604,7 +613,7 @@ def test_blended_steps_counts_the_step_cycles_whose_burst_the_blend_changed_once
 def _tucking(**config) -> ImprovedPremotor:
     """Contexts 0-1 start tucked, 2-3 learn their lift; the gait tucks above a lift of 3.0."""
     return ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44, **config),
-                            tuck=lambda a: 0.0 if a <= 3.0 else min(1.0, (a - 3.0) / 0.44), tucked_extra_s=0.3,
+                            tuck=TUCK, tucked_extra_s=0.3,
                             cell_width_m=0.04)
 
 
