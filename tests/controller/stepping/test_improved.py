@@ -679,3 +679,24 @@ def test_a_contact_in_the_air_late_in_a_lifted_swing_raises_the_lift_by_default(
     assert not raised(0.76, lift_phase=0.5) and raised(0.3, lift_phase=0.5)
     assert not raised(0.9, cause="foot_on_top") and not raised(0.7, cause="shin", swing=False)
     assert ImprovedConfig().lift_phase == 1.0
+
+
+def test_by_default_three_contexts_start_tucked_and_the_tallest_learns_its_lift_sharing_with_none():
+    """Round 16 (rule 17): the 0.09-0.13 m context starts tucked too. It starts at lift_max and
+    lifts within its tucked_time_s (0.48 s: 0.24 m at 0.5 m/s); the tallest starts at the
+    hardwired lift within 0.40 m, and with no other context of its kind it shares no credit."""
+    config = ImprovedConfig()
+    assert config.tucked_contexts == 3
+    p = ImprovedPremotor(4, 28, BASE, config, tuck=TUCK, tucked_extra_s=0.3, cell_width_m=0.04)
+    top = config.lift_max
+    assert p.lifts.tolist() == [top, top, top, config.lift_amplitude]
+    assert p.lift_amplitude(0.23, 2) == top and p.lift_amplitude(0.25, 2) == 1.0
+    assert p.lift_amplitude(0.39, 3) == config.lift_amplitude and p.lift_amplitude(0.41, 3) == 1.0
+
+    def traced_rows(row: int) -> list[bool]:
+        q = ImprovedPremotor(4, 28, BASE, config, tuck=TUCK, tucked_extra_s=0.3, cell_width_m=0.04)
+        q.on_step_onset(0.0, 10, context=row)
+        return (q.traces.at(0.0).reshape(4, 28).sum(axis=1) > 0.0).tolist()
+
+    assert traced_rows(2) == [True, True, True, False]  # shared with the two below, its kind
+    assert traced_rows(3) == [False, False, False, True]  # its kind has no other context
