@@ -687,14 +687,18 @@ def test_by_default_three_contexts_start_tucked_and_the_tallest_learns_its_lift_
     hardwired lift within 0.40 m, and with no other context of its kind it shares no credit."""
     config = ImprovedConfig()
     assert config.tucked_contexts == 3
-    p = ImprovedPremotor(4, 28, BASE, config, tuck=TUCK, tucked_extra_s=0.3, cell_width_m=0.04)
+
+    def default() -> ImprovedPremotor:
+        return ImprovedPremotor(4, 28, BASE, config, tuck=TUCK, tucked_extra_s=0.3, cell_width_m=0.04)
+
+    p = default()
     top = config.lift_max
     assert p.lifts.tolist() == [top, top, top, config.lift_amplitude]
     assert p.lift_amplitude(0.23, 2) == top and p.lift_amplitude(0.25, 2) == 1.0
     assert p.lift_amplitude(0.39, 3) == config.lift_amplitude and p.lift_amplitude(0.41, 3) == 1.0
 
     def traced_rows(row: int) -> list[bool]:
-        q = ImprovedPremotor(4, 28, BASE, config, tuck=TUCK, tucked_extra_s=0.3, cell_width_m=0.04)
+        q = default()
         q.on_step_onset(0.0, 10, context=row)
         return (q.traces.at(0.0).reshape(4, 28).sum(axis=1) > 0.0).tolist()
 
