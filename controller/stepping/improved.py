@@ -160,9 +160,10 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
     while a tall block's take-off window is 5-7 cm (docs/leg_limits.md): once near it, every
     mistake threw the weight past it. The contexts that start tucked (rule 9), whose windows are
     22 cm or wider (docs/leg_limits.md), learn at the full rate, as the global
-    ``settle_reflexes`` (below) was found to cost there. With rule 14 on tuning seeds 44-55 the last 50 trials per height went from 542 to 554
-    of 600, and on 56-67 (both rules) from 531 to 558 (docs/improved.md, "Round 15"). Neither
-    rule acts in a context that starts tucked, so at 0.08 m the records are unchanged.
+    ``settle_reflexes`` (below) was found to cost there. With rule 14 on tuning seeds 44-55 the
+    last 50 trials per height went from 542 to 554 of 600, and on 56-67 (both rules) from 531 to
+    558 (docs/improved.md, "Round 15"). Neither rule acts in a context that starts tucked, so at
+    0.08 m the records are unchanged.
 16. **Any contact in the air of a lifted swing means "lift higher"** (``lift_phase``, 1.0; it was
     0.5, the first half of the swing only). A partly tucked swing (a lift just above 3.0) has a
     far narrower window than the full tuck (docs/leg_limits.md), and its foot strikes the block
