@@ -128,6 +128,10 @@ class ControlLoop:
         self._premotor_lift: Callable[[float | None, int | None], float] | None = getattr(
             self.premotor, "lift_amplitude", None)
         self._premotor_reflex: Callable[[Reflex], None] | None = getattr(self.premotor, "on_contact_reflex", None)
+        # a premotor that shapes a tucked swing's descent (controller.stepping.improved, rule 18) says,
+        # at each gate after the lift, where this cycle's tucked swing starts down (NaN: the gait's)
+        self._premotor_descend: Callable[[], float] | None = getattr(self.premotor, "tucked_descend_phase", None)
+        self._descend_phase = math.nan
         # a premotor that wants the ground speed its range sensor sees gets, at each gate with a
         # target in view, the filter's closing speed and its variance
         self._premotor_speed: Callable[[float, float], None] | None = getattr(
@@ -432,6 +436,7 @@ class ControlLoop:
                 amplitude = MIN_LIFT_AMPLITUDE if asked < MIN_LIFT_AMPLITUDE else (
                     MAX_LIFT_AMPLITUDE if asked > MAX_LIFT_AMPLITUDE else asked)
         self.cpg.amplitude = amplitude
+        self._descend_phase = math.nan if self._premotor_descend is None else self._premotor_descend()
         return StepRecord(index=len(self.stats.steps), onset_s=now_s, gated_range_m=gated, cell=cell,
                           modulation_s=self.premotor.gated_weight(), amplitude=self.cpg.amplitude, context=context)
 
@@ -457,7 +462,7 @@ class ControlLoop:
             steps[-1].swing_start_s = now_s
         self._was_flexing = out.flexing
         self.last_cpg = out
-        x, z = self.trajectory.target(out, self.cpg.amplitude)
+        x, z = self.trajectory.target(out, self.cpg.amplitude, self._descend_phase)
         hip, knee = inverse(self._geometry, x, z)
         send = self.io.send
         send(self.hip.pos_frame(self._hip_muscle(hip, dt)))

@@ -96,9 +96,11 @@ class FootTrajectory:
         # the foot's distance from the hip with the knee bent to tuck_knee_rad (law of cosines)
         self.tuck_radius_m = math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(gait.tuck_knee_rad))
 
-    def target(self, out: CpgOutput, amplitude: float = 1.0) -> tuple[float, float]:
+    def target(self, out: CpgOutput, amplitude: float = 1.0, descend_phase: float = math.nan) -> tuple[float, float]:
         """Foot centre (x, z) relative to the hip [m] for this CPG output; ``amplitude``: the CPG's
-        lift amplitude this step cycle (above ``tuck_from_amplitude`` the swing tucks)."""
+        lift amplitude this step cycle (above ``tuck_from_amplitude`` the swing tucks);
+        ``descend_phase``: where this cycle's tucked swing starts down (NaN, or a phase not between
+        ``tuck_rise_phase`` and 1: the gait's ``tuck_descend_phase``)."""
         s = out.phase
         if not out.flexing:
             return self.x_front_m + (self.x_back_m - self.x_front_m) * s, self.z_stance_m
@@ -106,7 +108,7 @@ class FootTrajectory:
         z = self.z_ground_m + self.gait.step_height_m * out.flexor_drive * math.sin(math.pi * s)
         if amplitude > self.gait.tuck_from_amplitude:
             u = tuck_fraction(self.gait, amplitude)
-            x_t, z_t = self.tucked(s, out.flexor_drive)
+            x_t, z_t = self.tucked(s, out.flexor_drive, descend_phase)
             x, z = x + u * (x_t - x), z + u * (z_t - z)
         # never above the circle on which the knee is bent to tuck_knee_rad (below the hip): the
         # knee could not follow. At any lift, so the path is continuous where the tuck starts; the
@@ -116,16 +118,21 @@ class FootTrajectory:
             z = min(z, -math.sqrt(r * r - x * x))
         return x, z
 
-    def tucked(self, s: float, flexor_drive: float) -> tuple[float, float]:
+    def tucked(self, s: float, flexor_drive: float, descend_phase: float = math.nan) -> tuple[float, float]:
         """The fully tucked swing's foot centre (x, z) at swing phase ``s`` [m], before the knee's
         circle bounds it. Height: ``step_height_m * flexor_drive`` times a profile that rises on a
         quarter-sine to 1 at ``tuck_rise_phase``, stays at 1, and falls on a half-cosine from
         ``tuck_descend_phase`` to 0 at the swing's end. Forward: from ``x_back_m``, drawn back by up
         to ``tuck_back_m`` (a half-sine over the swing up to ``tuck_land_phase``), and carried to
         ``x_front_m`` on a half-cosine from ``tuck_forward_phase`` to ``tuck_land_phase``. Both
-        start and end where the half-sine swing does, so stance joins it without a jump."""
+        start and end where the half-sine swing does, so stance joins it without a jump.
+        ``descend_phase`` replaces ``tuck_descend_phase`` for this swing when it lies between
+        ``tuck_rise_phase`` and 1 (a premotor's choice for a tall block, see
+        :mod:`controller.stepping.improved` rule 18); otherwise (NaN) the gait's is used."""
         g = self.gait
         rise, descend = g.tuck_rise_phase, g.tuck_descend_phase
+        if rise < descend_phase < 1.0:
+            descend = descend_phase
         if s < rise:
             lift = math.sin(0.5 * math.pi * s / rise)
         elif s < descend:

@@ -182,6 +182,19 @@ planned. What it adds, each for a reason measured on the tuning seeds (0-99, doc
     that learns its lift, and shares its credit with none. With mixed heights the last 50 trials
     per height went from 568 to 570 of 600 on tuning seeds 44-55 and from 565 to 583 on 56-67
     (0.12 m 242/247 against 225/247 pooled; docs/improved.md, "Round 16").
+18. **A tall block's tucked swing comes down late** (``lifting_descend_phase``, 0.84; the gait's
+    ``tuck_descend_phase`` is 0.72). The far edge of the tucked swing's take-off window is where
+    the longest swing no longer carries the foot beyond the block before it comes down: at 0.20 m
+    the window was 5-7 cm, about one range cell, against 12-14 cm when the foot starts down at
+    0.84 of the swing (docs/leg_limits.md). So in the contexts that learn their lift (the tallest,
+    0.16 and 0.20 m), a tucked swing tells the loop (:meth:`ImprovedPremotor.tucked_descend_phase`)
+    to start down at 0.84. Not in the contexts that start tucked: there a late descent put a foot
+    crossing from about -0.33 m down just beyond the block's far face, a contact no sensor tells
+    from a touchdown, and at 0.08 m unheard contacts went from 0 to 34 on tuning seeds 44-69. The
+    joints' peak commanded speeds are unchanged (the rise's); the foot's commanded descent, at most
+    2.6 m/s, reaches 4.5 m/s. With mixed heights the last 50 trials per height went from 570 to 591
+    of 600 on tuning seeds 44-55 and from 583 to 588 on 56-67 (0.20 m 232/240 against 204/240
+    pooled; docs/improved.md, "Round 18"); at 0.08 m nothing changes.
 
 Two settings of round 4 are there to be tried, and off by default: ``flip_gain`` (a reflex
 flipped by rule 5 moves the weights by that many learning steps, so a saturated gate reaches the
@@ -301,6 +314,10 @@ class ImprovedConfig:
     tucked_keeps_burst: bool = setting(True, doc="a tucked swing in a context that learns its lift ignores a "
                                        "negative weight: its burst is at least the tucked burst (rule 14, a "
                                        "default since round 15)")
+    lifting_descend_phase: float = setting(0.84, "(fraction of the swing)", 0.0, 0.99,
+                                           "in the contexts that learn their lift, a tucked swing's foot starts "
+                                           "down at this phase (0: the gait's tuck_descend_phase, 0.72; rule 18, "
+                                           "a default since round 18)")
     learning: bool = setting(True, doc="false freezes the weights and the lifts")
 
     def __post_init__(self) -> None:
@@ -382,6 +399,7 @@ class ImprovedPremotor:
         self._tucked_extra_s = tucked_extra_s
         self._extra_s = 0.0  # this step cycle's lengthening for a tucked swing
         self._keep_burst = False  # this step cycle's burst ignores a negative weight (tucked_keeps_burst)
+        self._descend_phase = math.nan  # where this step cycle's tucked swing starts down (rule 18; NaN: the gait's)
         self._blend: tuple[int, float] | None = None  # (neighbour, its share) of the gated weight (rule 13)
         self.blended_steps = 0
         self._blended_this_step = False
@@ -651,6 +669,7 @@ class ImprovedPremotor:
         :meth:`on_step_onset`, with the gated range): also where rule 13 learns the gated range."""
         self._extra_s = 0.0
         self._keep_burst = False
+        self._descend_phase = math.nan
         if self.config.blend_readout:
             self._set_blend(gated_range_m)
         row = self._row(context)
@@ -666,9 +685,17 @@ class ImprovedPremotor:
             fraction = self._tuck(amplitude)
             self._extra_s = fraction * self._tucked_extra_s
             self._keep_burst = self.config.tucked_keeps_burst and fraction > 0.0 and not self._tucked_rows[row]
+            if fraction > 0.0 and not self._tucked_rows[row] and self.config.lifting_descend_phase > 0.0:
+                self._descend_phase = self.config.lifting_descend_phase
             if self._gates:
                 self._gates[-1].tuck = fraction
         return amplitude
+
+    def tucked_descend_phase(self) -> float:
+        """Where the tucked swing of the step cycle just gated starts down (asked by the loop at
+        each gate, after :meth:`lift_amplitude`): ``lifting_descend_phase`` for a tucked swing in a
+        context that learns its lift (rule 18), NaN otherwise (the gait's own)."""
+        return self._descend_phase
 
     def on_contact_reflex(self, reflex: Reflex) -> None:
         """A reflex in full, judged by the gate whose swing put the foot where it touched (in

@@ -17,6 +17,9 @@ the nearest failed ones on either side (it is at most that wide), with the first
 failure: ``foot_on_top`` on the far side (the swing could not carry the foot over), ``shin`` on
 the near side (the leg struck the near face rising). ``--lift-margin-m`` raises the oracle's lift
 (and so tucks the swing, from a lift of 3.0), as a shared context's learned lift does.
+``--controller SECTION.NAME=VALUE`` (repeatable, as ``hil.experiments.tuning`` takes it) measures
+the window with a controller setting changed, e.g. the tucked path's shape
+(``gait.tuck_descend_phase``, docs/leg_limits.md).
 
 The seed is the run's (start distances, sensor noise); the oracle never learns, so no seed is
 "tuned on" here, but the commands in docs use tuning seeds all the same.
@@ -86,16 +89,20 @@ class Window:
 
 
 def measure(height_m: float, plans_m: tuple[float, ...], trials: int = 8, seed: int = 5,
-            lift_margin_m: float | None = None, depth_m: float = 0.10) -> Window:
+            lift_margin_m: float | None = None, depth_m: float = 0.10,
+            controller: dict | None = None) -> Window:
     """The oracle's landings at ``height_m`` for each planned last footfall in ``plans_m`` [m,
     negative: before the near face], ``trials`` trials each (a fresh run per plan, seeded
-    ``seed``); ``lift_margin_m``: the oracle's lift margin (None: its default 0.07 m)."""
+    ``seed``); ``lift_margin_m``: the oracle's lift margin (None: its default 0.07 m);
+    ``controller``: changes to the controller's settings ({section: {name: value}}, as
+    :func:`hil.experiments.tuning.controller_config` takes them; None: the defaults)."""
     from hil.experiments.learn import LearnConfig, LearningRun
+    from hil.experiments.tuning import controller_config
 
     landings: list[Landing] = []
     for plan in plans_m:
         run = LearningRun(LearnConfig(seed=seed, trials=trials, method="oracle", obstacle_height_m=height_m,
-                                      obstacle_depth_m=depth_m))
+                                      obstacle_depth_m=depth_m, controller=controller_config(controller or {})))
         oracle = run.premotor
         settings = {"takeoff_m": plan, "tucked_takeoff_m": plan}
         if lift_margin_m is not None:
@@ -158,8 +165,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--trials", type=int, default=8, help="trials per planned footfall")
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--lift-margin-m", type=float, default=None, help="the oracle's lift margin [m] (default 0.07)")
+    p.add_argument("--controller", action="append", default=[], metavar="SECTION.NAME=VALUE",
+                   help="change a controller setting (value as JSON), e.g. gait.tuck_back_m=0.05; repeatable")
     args = p.parse_args(argv)
     try:
+        from hil.experiments.tuning import parse_controller
+
+        controller = parse_controller(args.controller)
         heights = [float(h) for h in args.heights.split(",")]
         plans = parse_plans(args.plans)
         if not 1 <= args.trials <= 1000:
@@ -173,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from controller.config import ControllerConfig
 
-    windows = [measure(h, plans, args.trials, args.seed, args.lift_margin_m) for h in heights]
+    windows = [measure(h, plans, args.trials, args.seed, args.lift_margin_m, controller=controller) for h in heights]
     print(report(windows, ControllerConfig().encoder.cell_width_m))
     return 0
 

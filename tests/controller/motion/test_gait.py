@@ -96,3 +96,30 @@ def test_stance_is_unchanged_by_the_amplitude() -> None:
     for phase in PHASES:
         out = CpgOutput(onset=False, flexing=False, phase=phase, flexor_drive=0.1, step_index=2)
         assert path.target(out, 3.44) == path.target(out) == path.target(out, 1.9)
+
+
+def test_a_swing_told_to_descend_later_stays_up_longer_and_lands_where_the_gait_does() -> None:
+    """Rule 18 of controller.stepping.improved: a premotor may move this cycle's tucked descent
+    later; before it the path is the gait's, after it the foot is higher, and it lands at the same
+    place. NaN, or a phase outside (tuck_rise_phase, 1), keeps the gait's own path float for float."""
+    path = FootTrajectory(GAIT, CPG, GEOMETRY)
+    amplitude = GAIT.tuck_full_amplitude
+    late = 0.84
+    for phase in PHASES:
+        out = swing(phase, amplitude)
+        own = path.target(out, amplitude)
+        assert path.target(out, amplitude, math.nan) == own
+        assert path.target(out, amplitude, GAIT.tuck_rise_phase) == own  # not after the rise: ignored
+        assert path.target(out, amplitude, 1.0) == own
+        told = path.target(out, amplitude, late)
+        assert told[0] == own[0]  # the forward motion is the gait's
+        if phase <= GAIT.tuck_descend_phase:
+            assert told == own
+        else:  # no lower (both may be held at the knee's circle), and clearly higher late on
+            assert told[1] >= own[1], phase
+            if 0.85 <= phase <= 0.95:
+                assert told[1] > own[1] + 0.01, phase
+    end = path.target(swing(1.0, amplitude), amplitude, late)
+    assert math.isclose(end[1], path.target(swing(1.0, amplitude), amplitude)[1], abs_tol=1e-12)
+    # a lift that does not tuck ignores it (the half-sine, float for float)
+    assert path.target(swing(0.9, 1.9), 1.9, late) == half_sine(0.9, 1.9)

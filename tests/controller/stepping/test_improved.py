@@ -704,3 +704,27 @@ def test_by_default_three_contexts_start_tucked_and_the_tallest_learns_its_lift_
 
     assert traced_rows(2) == [True, True, True, False]  # shared with the two below, its kind
     assert traced_rows(3) == [False, False, False, True]  # its kind has no other context
+
+
+def test_only_a_tucked_swing_in_a_context_that_learns_its_lift_descends_late():
+    """Rule 18: ``lifting_descend_phase`` is told to the loop (tucked_descend_phase) for a tucked
+    swing of the tallest context only; the contexts that start tucked, an untucked lift and a
+    plain step keep the gait's descent (NaN)."""
+    config = ImprovedConfig(lifting_descend_phase=0.84)
+    p = ImprovedPremotor(4, 28, BASE, config, tuck=TUCK, tucked_extra_s=0.3, cell_width_m=0.04)
+    p.on_step_onset(0.0, 5, context=0)
+    assert p.lift_amplitude(0.2, 0) == config.lift_max and math.isnan(p.tucked_descend_phase())
+    p.lifts[3] = 1.9  # not tucked: the hardwired lift's half-sine
+    p.on_step_onset(1.0, 5, context=3)
+    assert p.lift_amplitude(0.2, 3) == 1.9 and math.isnan(p.tucked_descend_phase())
+    p.lifts[3] = config.lift_max  # tucked
+    p.on_step_onset(2.0, 5, context=3)
+    assert p.lift_amplitude(0.2, 3) == config.lift_max and p.tucked_descend_phase() == 0.84
+    p.on_step_onset(3.0, 20, context=3)  # beyond the lift range: a plain step
+    assert p.lift_amplitude(0.9, 3) == 1.0 and math.isnan(p.tucked_descend_phase())
+    off = ImprovedPremotor(4, 28, BASE, ImprovedConfig(lifting_descend_phase=0.0), tuck=TUCK,
+                           tucked_extra_s=0.3, cell_width_m=0.04)
+    off.lifts[3] = config.lift_max
+    off.on_step_onset(0.0, 5, context=3)
+    off.lift_amplitude(0.2, 3)
+    assert math.isnan(off.tucked_descend_phase())

@@ -174,6 +174,39 @@ def test_the_loop_takes_a_premotors_lift_within_its_bounds_and_gives_it_each_ref
     assert heard  # (some run had a reflex to hear)
 
 
+def test_the_loop_gives_a_tucked_swing_the_descent_its_premotor_asks_for():
+    """Rule 18 of controller.stepping.improved: a premotor's ``tucked_descend_phase``, asked at
+    each gate, shapes that cycle's tucked swing; NaN keeps the gait's. A fully tucked lift with a
+    late descent walks differently from the same lift with the gait's descent."""
+    from controller.stepping.learner import AdaptivePremotor
+    from hil.experiments.learn import LearningRun
+
+    class Descending:  # the controller's premotor, by composition (a compiled class takes no subclass)
+        def __init__(self, descend: float) -> None:
+            self.inner = AdaptivePremotor(28, 0.3)
+            self.on_step_onset, self.burst_s, self.gated_weight, self.on_reflex = (
+                self.inner.on_step_onset, self.inner.burst_s, self.inner.gated_weight, self.inner.on_reflex)
+            self.descend, self.asked = descend, 0
+
+        def lift_amplitude(self, gated_range_m, context):
+            return 3.44 if gated_range_m is not None and gated_range_m < 0.4 else 1.0
+
+        def tucked_descend_phase(self):
+            self.asked += 1
+            return self.descend
+
+    footfalls = {}  # the whole trial's record
+    for descend in (math.nan, 0.9):
+        p = Descending(descend)
+        run = LearningRun(LearnConfig(trials=1, seed=3, obstacle_height_m=0.16), premotor=p)
+        try:
+            footfalls[descend == descend] = run.run()[0]
+            assert p.asked == len(run.ls.loop.stats.steps)  # once per gate
+        finally:
+            run.close()
+    assert footfalls[True] != footfalls[False]
+
+
 def test_the_oracle_lifts_for_the_true_height_and_as_before_at_low_ones():
     from hil.experiments.oracle import OraclePremotor
 

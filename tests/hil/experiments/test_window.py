@@ -47,3 +47,19 @@ def test_the_oracle_clears_from_inside_the_window_and_lands_on_top_from_too_far(
     assert [x.success for x in w.landings] == [True, True, False, False]
     assert all(x.cause == "foot_on_top" for x in w.landings[2:])
     assert all(x.last_footfall_m is not None and abs(x.last_footfall_m - x.plan_m) < 0.05 for x in w.landings)
+
+
+def test_a_controller_setting_reaches_the_measured_runs_and_a_bad_one_is_one_line(capsys):
+    # 0.20 m, fully tucked: from 0.26 m the gait's descent (0.72) comes down on top of the block;
+    # starting down at 0.84 of the swing carries the foot beyond it (docs/leg_limits.md)
+    plan = (-0.26,)
+    own = window.measure(0.20, plan, trials=2, seed=5, lift_margin_m=0.2)
+    late = window.measure(0.20, plan, trials=2, seed=5, lift_margin_m=0.2,
+                          controller={"gait": {"tuck_descend_phase": 0.84}})
+    assert [x.success for x in own.landings] == [False, False]
+    assert all(x.cause == "foot_on_top" for x in own.landings)
+    assert [x.success for x in late.landings] == [True, True]
+    assert window.main(["--controller", "gait.no_such=1"]) == 2
+    assert window.main(["--controller", "gait.tuck_descend_phase=0.1"]) == 2  # before the rise: refused
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith("window: error: ") for line in err)
