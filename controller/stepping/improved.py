@@ -684,8 +684,9 @@ class ImprovedPremotor:
         if self._tuck is not None:
             fraction = self._tuck(amplitude)
             self._extra_s = fraction * self._tucked_extra_s
-            self._keep_burst = self.config.tucked_keeps_burst and fraction > 0.0 and not self._tucked_rows[row]
-            if fraction > 0.0 and not self._tucked_rows[row] and self.config.lifting_descend_phase > 0.0:
+            lifting_tuck = fraction > 0.0 and not self._tucked_rows[row]  # a tucked swing of a learnt lift
+            self._keep_burst = self.config.tucked_keeps_burst and lifting_tuck
+            if lifting_tuck and self.config.lifting_descend_phase > 0.0:
                 self._descend_phase = self.config.lifting_descend_phase
             if self._gates:
                 self._gates[-1].tuck = fraction

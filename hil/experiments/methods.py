@@ -73,7 +73,8 @@ def build_improved(controller: ControllerConfig, learning: bool = True, **settin
     """The improved learner for this controller: its lift settings from the controller's reflexes,
     its highest lift from the leg (:func:`lift_max`), the gait's tuck and the CPG's longest burst
     for a tucked swing, the ground speed the gait believes; ``settings``: other
-    :class:`controller.stepping.improved.ImprovedConfig` settings (tuning)."""
+    :class:`controller.stepping.improved.ImprovedConfig` settings (tuning). A ValueError names a
+    setting the controller's gait cannot follow."""
     from functools import partial
 
     from controller.motion.gait import tuck_fraction
@@ -82,6 +83,12 @@ def build_improved(controller: ControllerConfig, learning: bool = True, **settin
     config = ImprovedConfig(**{"learning": learning, "lift_amplitude": controller.reflexes.lift_amplitude,
                                "lift_range_m": controller.reflexes.lift_range_m, "lift_max": lift_max(controller),
                                **settings})
+    # rule 18's phase must be one the gait's tucked path takes (FootTrajectory.tucked keeps its own
+    # descent for any other): refused here, where both are known, rather than ignored in the swing
+    descend, rise = config.lifting_descend_phase, controller.gait.tuck_rise_phase
+    if descend > 0.0 and not rise < descend:
+        raise ValueError(f"improved.lifting_descend_phase must be 0 (the gait's descent) or after "
+                         f"gait.tuck_rise_phase = {rise}, got {descend!r}")
     cpg = controller.cpg
     return ImprovedPremotor(controller.height.n_contexts, controller.encoder.n_cells, cpg.burst_s, config,
                             tuck=partial(tuck_fraction, controller.gait), tucked_extra_s=cpg.burst_max_s - cpg.burst_s,

@@ -236,6 +236,9 @@ def main(argv: list[str] | None = None) -> int:
         controller = parse_controller(args.controller)
         conditions = parse_conditions(args.condition)
         heights = parse_heights(args.heights)
+        from hil.experiments.methods import build_improved
+
+        build_improved(controller_config(controller), **settings)  # settings the gait cannot follow
     except (ValueError, TypeError) as exc:
         print(f"tuning: error: {exc}", file=sys.stderr)
         return 2

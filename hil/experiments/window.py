@@ -99,10 +99,11 @@ def measure(height_m: float, plans_m: tuple[float, ...], trials: int = 8, seed: 
     from hil.experiments.learn import LearnConfig, LearningRun
     from hil.experiments.tuning import controller_config
 
+    config = LearnConfig(seed=seed, trials=trials, method="oracle", obstacle_height_m=height_m,
+                         obstacle_depth_m=depth_m, controller=controller_config(controller or {}))
     landings: list[Landing] = []
     for plan in plans_m:
-        run = LearningRun(LearnConfig(seed=seed, trials=trials, method="oracle", obstacle_height_m=height_m,
-                                      obstacle_depth_m=depth_m, controller=controller_config(controller or {})))
+        run = LearningRun(config)
         oracle = run.premotor
         settings = {"takeoff_m": plan, "tucked_takeoff_m": plan}
         if lift_margin_m is not None:

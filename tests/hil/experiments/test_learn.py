@@ -195,16 +195,16 @@ def test_the_loop_gives_a_tucked_swing_the_descent_its_premotor_asks_for():
             self.asked += 1
             return self.descend
 
-    footfalls = {}  # the whole trial's record
+    records = {}  # the whole trial's record, by whether a descent was asked for
     for descend in (math.nan, 0.9):
         p = Descending(descend)
         run = LearningRun(LearnConfig(trials=1, seed=3, obstacle_height_m=0.16), premotor=p)
         try:
-            footfalls[descend == descend] = run.run()[0]
+            records[descend == descend] = run.run()[0]
             assert p.asked == len(run.ls.loop.stats.steps)  # once per gate
         finally:
             run.close()
-    assert footfalls[True] != footfalls[False]
+    assert records[True] != records[False]
 
 
 def test_the_oracle_lifts_for_the_true_height_and_as_before_at_low_ones():

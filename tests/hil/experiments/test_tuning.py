@@ -83,3 +83,18 @@ def test_conditions_are_named_checked_and_reach_the_run():
     r = tuning.run_seed(3, 1, {}, (0.08,), conditions={"rail_speed_m_s": 0.45, "believed_rail_speed_m_s": 0.5})
     assert r["conditions"]["rail_speed_m_s"] == 0.45 and r["conditions"]["believed_rail_speed_m_s"] == 0.5
     assert tuning.run_seed(3, 1, {}, (0.08,))["conditions"]["rail_speed_m_s"] == 0.5
+
+
+def test_a_descent_the_gait_would_not_take_is_refused_before_any_run(capsys):
+    """Rule 18's phase must lie after the gait's rise (the swing would otherwise keep the gait's
+    descent, silently): the builder refuses it, and the tool says so in one line before any run."""
+    from hil.experiments.methods import build_improved
+
+    with pytest.raises(ValueError, match="lifting_descend_phase must be 0 .* after gait.tuck_rise_phase = 0.2"):
+        build_improved(tuning.controller_config({}), lifting_descend_phase=0.1)
+    assert build_improved(tuning.controller_config({}), lifting_descend_phase=0.0).config.lifting_descend_phase == 0.0
+    assert tuning.main(["--seeds", "3", "--set", "lifting_descend_phase=0.15"]) == 2
+    assert tuning.main(["--seeds", "3", "--set", "lifting_descend_phase=0.4",
+                        "--controller", "gait.tuck_rise_phase=0.45"]) == 2  # after 0.2, before that rise
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith("tuning: error: improved.lifting_descend_phase") for line in err)
