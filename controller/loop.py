@@ -136,6 +136,9 @@ class ControlLoop:
         # target in view, the filter's closing speed and its variance
         self._premotor_speed: Callable[[float, float], None] | None = getattr(
             self.premotor, "observe_closing_speed", None)
+        # a premotor that senses the ground speed may tell the stance, at each touchdown, how fast to
+        # sweep back (controller.stepping.improved, rule 19; NaN: as it is)
+        self._premotor_stance: Callable[[], float] | None = getattr(self.premotor, "stance_speed_m_s", None)
         self._range_samples_seen = 0
         self.trajectory = FootTrajectory(config.gait, config.cpg, config.geometry)
         self.muscles = {a.name: LowPass(config.gait.muscle_tau_s) for a in self.axes}
@@ -460,6 +463,8 @@ class ControlLoop:
         if out.flexing and not self._was_flexing and steps:
             steps[-1].burst_s = burst
             steps[-1].swing_start_s = now_s
+        if self._was_flexing and not out.flexing and self._premotor_stance is not None:
+            self.trajectory.follow_ground_speed(self._premotor_stance())  # a touchdown: the stance begins
         self._was_flexing = out.flexing
         self.last_cpg = out
         x, z = self.trajectory.target(out, self.cpg.amplitude, self._descend_phase)

@@ -90,11 +90,19 @@ class FootTrajectory:
         self.gait = gait
         self.x_front_m = gait.foot_ahead_m
         self.x_back_m = gait.foot_ahead_m - gait.ground_speed_m_s * cpg.stance_s
+        self._stance_s = cpg.stance_s
         self.z_ground_m = -(geometry.hip_height_m - geometry.foot_radius_m)
         self.z_stance_m = self.z_ground_m - gait.stance_press_m
         l1, l2 = geometry.thigh_m, geometry.shank_m
         # the foot's distance from the hip with the knee bent to tuck_knee_rad (law of cosines)
         self.tuck_radius_m = math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(gait.tuck_knee_rad))
+
+    def follow_ground_speed(self, speed_m_s: float) -> None:
+        """The stance sweeps back at ``speed_m_s`` from now on (told at a touchdown, so the sweep
+        never jumps mid-stance); NaN, or a speed outside the gait's declared (0, 3] m/s, keeps the
+        sweep as it is. The gait's ``ground_speed_m_s`` again gives its own sweep, float for float."""
+        if 0.0 < speed_m_s <= 3.0:
+            self.x_back_m = self.x_front_m - speed_m_s * self._stance_s
 
     def target(self, out: CpgOutput, amplitude: float = 1.0, descend_phase: float = math.nan) -> tuple[float, float]:
         """Foot centre (x, z) relative to the hip [m] for this CPG output; ``amplitude``: the CPG's

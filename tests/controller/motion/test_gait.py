@@ -123,3 +123,20 @@ def test_a_swing_told_to_descend_later_stays_up_longer_and_lands_where_the_gait_
     assert math.isclose(end[1], path.target(swing(1.0, amplitude), amplitude)[1], abs_tol=1e-12)
     # a lift that does not tuck ignores it (the half-sine, float for float)
     assert path.target(swing(0.9, 1.9), 1.9, late) == half_sine(0.9, 1.9)
+
+
+def test_a_stance_told_the_ground_speed_sweeps_back_at_it_and_the_belief_gives_the_gaits_own() -> None:
+    """Rule 19 of controller.stepping.improved: a premotor that senses the ground speed may tell
+    the stance how fast to sweep back (the loop tells it at a touchdown). The gait's own speed
+    gives its own sweep float for float; NaN, 0 or a speed beyond 3 m/s leaves it as it is."""
+    path = FootTrajectory(GAIT, CPG, GEOMETRY)
+    own = path.x_back_m
+    stance = CpgOutput(onset=False, flexing=False, phase=1.0, flexor_drive=0.0, step_index=7)
+    path.follow_ground_speed(0.45)
+    assert math.isclose(path.target(stance)[0], GAIT.foot_ahead_m - 0.45 * CPG.stance_s, abs_tol=1e-15)
+    assert path.target(swing(0.0, 1.0))[0] == path.x_back_m  # the swing starts where the stance ended
+    for ignored in (math.nan, 0.0, -0.5, 3.5):
+        path.follow_ground_speed(ignored)
+        assert math.isclose(path.x_back_m, GAIT.foot_ahead_m - 0.45 * CPG.stance_s, abs_tol=1e-15)
+    path.follow_ground_speed(GAIT.ground_speed_m_s)
+    assert path.x_back_m == own

@@ -640,6 +640,24 @@ def test_with_tucked_keeps_burst_a_tucked_swing_in_a_context_that_learns_its_lif
     assert ImprovedConfig().tucked_keeps_burst  # a default since round 15
 
 
+def test_with_keeps_burst_tucked_rows_a_context_that_starts_tucked_keeps_its_crossings_burst_too():
+    """Round 19: rule 14 also in the contexts that start tucked (their crossing's take-off is set
+    by the step before as well); only with rule 14 on, only a tucked swing, only a negative weight."""
+    def burst(rows: bool, keep: bool = True, w: float = -0.3, range_m: float = 0.1) -> float:
+        p = _tucking(tucked_keeps_burst=keep, keeps_burst_tucked_rows=rows, blend_readout=False)
+        p.weights[1, 2] = w
+        p.on_step_onset(0.0, 2, context=1)
+        p.lift_amplitude(range_m, 1)  # row 1 starts tucked: fully tucked within its range
+        return p.burst_s(0.0)
+
+    full = BASE + 0.3
+    assert burst(False) == pytest.approx(full - 0.3)  # off: the weight shortens it, as before
+    assert burst(True) == pytest.approx(full)
+    assert burst(True, keep=False) == pytest.approx(full - 0.3)  # only with rule 14
+    assert burst(True, w=0.1) == pytest.approx(full + 0.1)
+    assert burst(True, range_m=0.5) == pytest.approx(BASE - 0.3)  # beyond its range: a plain step
+
+
 def test_with_settle_lifting_a_trained_synapse_learns_less_only_in_the_contexts_that_learn_their_lift():
     """Round 15: a tall block's take-off window is a few centimetres, and a full lesson moves the
     step before's stride by many: there a synapse's step falls as it is trained,
@@ -728,3 +746,25 @@ def test_only_a_tucked_swing_in_a_context_that_learns_its_lift_descends_late():
     off.on_step_onset(0.0, 5, context=3)
     off.lift_amplitude(0.2, 3)
     assert math.isnan(off.tucked_descend_phase())
+
+
+def test_with_stance_follows_speed_the_stance_is_told_the_sensed_speed_beyond_the_deadband_only():
+    """Round 19, rule 19: the belief within ``stance_speed_deadband_m_s`` of the sensed speed (the
+    gait's own sweep, float for float), or before ``stance_speed_after`` closing speeds are fused;
+    the sensed speed beyond it; NaN with the setting off."""
+    def told(follow: bool, speeds: list[float], deadband: float = 0.02, after: int = 20) -> float:
+        p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(stance_follows_speed=follow, stance_speed_after=after,
+                                                          stance_speed_deadband_m_s=deadband,
+                                                          speed_belief_sd_m_s=0.05), ground_speed_m_s=0.5)
+        for speed in speeds:
+            p.observe_closing_speed(speed, 0.0001)
+        return p.stance_speed_m_s()
+
+    assert math.isnan(told(False, [0.45] * 20))
+    assert told(True, []) == 0.5
+    assert told(True, [0.49] * 20) == 0.5  # within the deadband: the belief
+    slow = told(True, [0.45] * 20)
+    assert 0.45 < slow < 0.455  # the fused speed, the belief's weight nearly gone
+    assert told(True, [0.45] * 20, deadband=0.1) == 0.5
+    assert told(True, [0.45] * 19) == 0.5  # one gate short of stance_speed_after (20)
+    assert told(True, [0.45] * 5, after=5) == pytest.approx(slow, abs=0.005)

@@ -174,18 +174,27 @@ def test_the_loop_takes_a_premotors_lift_within_its_bounds_and_gives_it_each_ref
     assert heard  # (some run had a reflex to hear)
 
 
+class _ControllersPremotor:
+    """The controller's own premotor by composition (a compiled class takes no subclass), for a
+    test to add one of the hooks the loop asks a premotor for."""
+
+    def __init__(self) -> None:
+        from controller.stepping.learner import AdaptivePremotor
+
+        self.inner = AdaptivePremotor(28, 0.3)
+        self.on_step_onset, self.burst_s, self.gated_weight, self.on_reflex = (
+            self.inner.on_step_onset, self.inner.burst_s, self.inner.gated_weight, self.inner.on_reflex)
+
+
 def test_the_loop_gives_a_tucked_swing_the_descent_its_premotor_asks_for():
     """Rule 18 of controller.stepping.improved: a premotor's ``tucked_descend_phase``, asked at
     each gate, shapes that cycle's tucked swing; NaN keeps the gait's. A fully tucked lift with a
     late descent walks differently from the same lift with the gait's descent."""
-    from controller.stepping.learner import AdaptivePremotor
     from hil.experiments.learn import LearningRun
 
-    class Descending:  # the controller's premotor, by composition (a compiled class takes no subclass)
+    class Descending(_ControllersPremotor):
         def __init__(self, descend: float) -> None:
-            self.inner = AdaptivePremotor(28, 0.3)
-            self.on_step_onset, self.burst_s, self.gated_weight, self.on_reflex = (
-                self.inner.on_step_onset, self.inner.burst_s, self.inner.gated_weight, self.inner.on_reflex)
+            super().__init__()
             self.descend, self.asked = descend, 0
 
         def lift_amplitude(self, gated_range_m, context):
@@ -204,6 +213,39 @@ def test_the_loop_gives_a_tucked_swing_the_descent_its_premotor_asks_for():
             assert p.asked == len(run.ls.loop.stats.steps)  # once per gate
         finally:
             run.close()
+    assert records[True] != records[False]
+
+
+def test_the_loop_tells_the_stance_the_speed_its_premotor_asks_for_at_each_touchdown():
+    """Rule 19 of controller.stepping.improved: a premotor's ``stance_speed_m_s``, asked at each
+    touchdown, sets how fast the stance sweeps back; NaN keeps the gait's. A stance told 0.45 m/s
+    walks differently from the gait's own 0.5 m/s, and the trajectory holds the speed told."""
+    from hil.experiments.learn import LearningRun
+
+    class Sweeping(_ControllersPremotor):
+        def __init__(self, speed: float) -> None:
+            super().__init__()
+            self.speed, self.asked = speed, 0
+
+        def stance_speed_m_s(self):
+            self.asked += 1
+            return self.speed
+
+    records, backs = {}, {}
+    for speed in (math.nan, 0.45):
+        p = Sweeping(speed)
+        run = LearningRun(LearnConfig(trials=1, seed=3), premotor=p)
+        try:
+            records[speed == speed] = run.run()[0]
+            loop = run.ls.loop
+            swings = sum(1 for s in loop.stats.steps if s.swing_s == s.swing_s)  # each ended swing
+            assert swings - 1 <= p.asked <= swings + 1  # once per touchdown
+            backs[speed == speed] = loop.trajectory.x_back_m
+        finally:
+            run.close()
+    gait, cpg = LearnConfig().controller.gait, LearnConfig().controller.cpg
+    assert backs[False] == gait.foot_ahead_m - gait.ground_speed_m_s * cpg.stance_s
+    assert math.isclose(backs[True], gait.foot_ahead_m - 0.45 * cpg.stance_s, abs_tol=1e-12)
     assert records[True] != records[False]
 
 
