@@ -225,7 +225,7 @@ touchdown (:meth:`ImprovedPremotor.stance_speed_m_s`) to sweep at the sensed spe
 the belief (the gait's own sweep, float for float: told the truth, the records are unchanged).
 With the plant 10% slower than believed it did better on tuning seeds 44-57 (no mistake after
 trial 100 on 13/14 against 11/14) but not on 58-71 (12/14 against 13/14), which the rule set
-before that run required. ``keeps_burst_tucked_rows``: rule 14 in the contexts that start tucked
+before that run required, nor on 72-85, run after (12/14 against 13/14). ``keeps_burst_tucked_rows``: rule 14 in the contexts that start tucked
 too; under range noise 0.04 m on 44-57 it moved the late mistakes, it did not end them
 (docs/improved.md, "Round 19").
 
