@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 from controller.motion.cpg import CpgConfig, CpgOutput
 from controller.motion.kinematics import LegGeometry
-from controller.settings.schema import check_settings, setting
+from controller.settings.schema import check_settings, setting, settings_of
 from protocol.compiled import interpreted
 
 
@@ -91,6 +91,10 @@ class FootTrajectory:
         self.x_front_m = gait.foot_ahead_m
         self.x_back_m = gait.foot_ahead_m - gait.ground_speed_m_s * cpg.stance_s
         self._stance_s = cpg.stance_s
+        # the fastest sweep a stance may be told: the ground speed's declared bound, read once
+        bound = next(x.hi for x in settings_of(GaitConfig) if x.key == "ground_speed_m_s")
+        assert bound is not None  # the setting declares its range
+        self._max_ground_speed_m_s: float = bound
         self.z_ground_m = -(geometry.hip_height_m - geometry.foot_radius_m)
         self.z_stance_m = self.z_ground_m - gait.stance_press_m
         l1, l2 = geometry.thigh_m, geometry.shank_m
@@ -99,9 +103,10 @@ class FootTrajectory:
 
     def follow_ground_speed(self, speed_m_s: float) -> None:
         """The stance sweeps back at ``speed_m_s`` from now on (told at a touchdown, so the sweep
-        never jumps mid-stance); NaN, or a speed outside the gait's declared (0, 3] m/s, keeps the
-        sweep as it is. The gait's ``ground_speed_m_s`` again gives its own sweep, float for float."""
-        if 0.0 < speed_m_s <= 3.0:
+        never jumps mid-stance); NaN, or a speed outside (0, the bound ``GaitConfig.ground_speed_m_s``
+        declares], keeps the sweep as it is. The gait's ``ground_speed_m_s`` again gives its own
+        sweep, float for float."""
+        if 0.0 < speed_m_s <= self._max_ground_speed_m_s:
             self.x_back_m = self.x_front_m - speed_m_s * self._stance_s
 
     def target(self, out: CpgOutput, amplitude: float = 1.0, descend_phase: float = math.nan) -> tuple[float, float]:

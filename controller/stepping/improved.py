@@ -225,9 +225,9 @@ touchdown (:meth:`ImprovedPremotor.stance_speed_m_s`) to sweep at the sensed spe
 the belief (the gait's own sweep, float for float: told the truth, the records are unchanged).
 With the plant 10% slower than believed it did better on tuning seeds 44-57 (no mistake after
 trial 100 on 13/14 against 11/14) but not on 58-71 (12/14 against 13/14), which the rule set
-before that run required, nor on 72-85, run after (12/14 against 13/14). ``keeps_burst_tucked_rows``: rule 14 in the contexts that start tucked
-too; under range noise 0.04 m on 44-57 it moved the late mistakes, it did not end them
-(docs/improved.md, "Round 19").
+before that run required, nor on 72-85, run after (12/14 against 13/14).
+``keeps_burst_tucked_rows``: rule 14 in the contexts that start tucked too; under range noise
+0.04 m on 44-57 it moved the late mistakes, it did not end them (docs/improved.md, "Round 19").
 
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
@@ -725,9 +725,10 @@ class ImprovedPremotor:
         if self._tuck is not None:
             fraction = self._tuck(amplitude)
             self._extra_s = fraction * self._tucked_extra_s
-            lifting_tuck = fraction > 0.0 and not self._tucked_rows[row]  # a tucked swing of a learnt lift
-            self._keep_burst = self.config.tucked_keeps_burst and (
-                lifting_tuck or (fraction > 0.0 and self.config.keeps_burst_tucked_rows))
+            tucked_row = self._tucked_rows[row]
+            lifting_tuck = fraction > 0.0 and not tucked_row  # a tucked swing of a learnt lift
+            self._keep_burst = self.config.tucked_keeps_burst and fraction > 0.0 and (
+                not tucked_row or self.config.keeps_burst_tucked_rows)
             if lifting_tuck and self.config.lifting_descend_phase > 0.0:
                 self._descend_phase = self.config.lifting_descend_phase
             if self._gates:
