@@ -768,3 +768,93 @@ def test_with_stance_follows_speed_the_stance_is_told_the_sensed_speed_beyond_th
     assert told(True, [0.45] * 20, deadband=0.1) == 0.5
     assert told(True, [0.45] * 19) == 0.5  # one gate short of stance_speed_after (20)
     assert told(True, [0.45] * 5, after=5) == pytest.approx(slow, abs=0.005)
+
+
+def test_with_plain_on_top_shortens_a_plain_step_on_top_learns_shorter_and_the_step_before_longer():
+    """Round 20: in a context that starts tucked, a swing that did not lift and came down on top of
+    the block was too long (a plain step cannot clear it; shorter, the next gate lifts), and the
+    step before it too short. Only a foot on top, only a swing that did not lift, only in the
+    contexts that start tucked; off by default."""
+    def lesson(on: bool, row: int = 1, range_m: float = 0.30, cause: str = "foot_on_top") -> tuple[float, float]:
+        p = _tucking(plain_on_top_shortens=on, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.0,
+                     flip_at=2.0, learning_rate_s=0.1, blend_readout=False, settle_lifting=0.0)
+        p.on_step_onset(0.0, 15, context=row)
+        p.lift_amplitude(0.60, row)  # the step before: beyond every lift range
+        p.on_step_onset(0.6, 7, context=row)
+        p.lift_amplitude(range_m, row)
+        p.on_contact_reflex(reflex("extension", 1.0, cause=cause))
+        return float(p.weights[row, 7]), float(p.weights[row, 15])
+
+    plain, before = lesson(False)
+    assert plain > 0.0 and before > 0.0  # off: the reflex's own kind for both, as before
+    plain, before = lesson(True)
+    assert plain < 0.0 and before > 0.0
+    assert all(w > 0.0 for w in lesson(True, range_m=0.20))  # a lifted swing (row 1 lifts within 0.28 m)
+    assert all(w > 0.0 for w in lesson(True, row=3, range_m=0.45))  # a context that learns its lift (beyond 0.40 m)
+    assert all(w > 0.0 for w in lesson(True, cause="shin"))  # a shin contact is not a foot on top
+    assert not ImprovedConfig().plain_on_top_shortens
+
+
+def test_with_on_top_extends_before_a_tucked_crossing_on_top_teaches_a_short_committed_step_before_longer():
+    """Round 20: a tucked crossing (the longest swing) that came down on top took off beyond its
+    window, so the step before was too short whichever branch rule 8 had committed it to: that
+    lesson moves a weight committed to the short branch up; the long branch is committed as before.
+    Only for a tucked crossing in a context that starts tucked; off by default."""
+    def before(on: bool, w: float = -0.3, crossing_m: float = 0.20) -> float:
+        p = _tucking(on_top_extends_before=on, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.1,
+                     flip_at=2.0, learning_rate_s=0.1, blend_readout=False)
+        p.weights[1, 15] = w
+        p.on_step_onset(0.0, 15, context=1)
+        p.lift_amplitude(0.60, 1)
+        p.on_step_onset(0.6, 5, context=1)
+        p.lift_amplitude(crossing_m, 1)  # within 0.28 m: fully tucked
+        p.on_contact_reflex(reflex("extension", 1.0))
+        return float(p.weights[1, 15])
+
+    assert before(False) < -0.3  # off: rule 8 moves it further along its own sign
+    assert before(True) > -0.3
+    assert before(False, w=0.3) > 0.3 and before(True, w=0.3) == before(False, w=0.3)
+    assert before(True, crossing_m=0.35) == before(False, crossing_m=0.35)  # a plain step: as before
+    assert not ImprovedConfig().on_top_extends_before
+
+
+def test_with_edge_on_cell_a_context_that_starts_tucked_lifts_below_the_nearest_cell_boundary():
+    """Round 20: the tucked range at the sensed speed falls inside a cell at another speed (0.252 m
+    at 0.45 m/s), where one weight would drive both a plain step and a crossing; with the setting
+    it moves to the nearest boundary. At the believed speed (0.28 m, a boundary) nothing changes."""
+    def limit(on: bool, speed_m_s: float, row: int = 0) -> float:
+        p = _tucking(edge_on_cell=on)
+        p.ground_speed_m_s = speed_m_s  # as rule 10's fused closing speeds would set it
+        return p._lift_limit_m(row)
+
+    assert limit(True, 0.5) == limit(False, 0.5) == pytest.approx(0.28)
+    assert limit(False, 0.45) == pytest.approx(0.252)
+    assert limit(True, 0.45) == pytest.approx(0.24)
+    assert limit(True, 0.55) == pytest.approx(0.32)
+    assert limit(True, 0.45, row=3) == limit(False, 0.45, row=3)  # a context that learns its lift: as before
+    assert not ImprovedConfig().edge_on_cell
+    with pytest.raises(ValueError, match="edge_on_cell"):
+        ImprovedPremotor(4, 28, BASE, ImprovedConfig(edge_on_cell=True, blend_readout=False), cell_width_m=None)
+
+
+def test_with_commit_to_bound_a_committed_weight_moves_its_traces_fraction_of_the_way_to_its_bound():
+    """Round 20: rule 8 moves a committed weight along its own sign by the learning rate; with the
+    setting, toward its branch's extreme (the bound) by its trace's fraction of the way. A weight
+    not committed learns as before."""
+    def after(on: bool, w: float, kind: str = "placement") -> float:
+        p = _tucking(commit_to_bound=on, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.1,
+                     flip_at=2.0, learning_rate_s=0.1, blend_readout=False, weight_limit_s=0.5)
+        p.weights[1, 15] = w
+        p.on_step_onset(0.0, 15, context=1)
+        p.lift_amplitude(0.60, 1)
+        p.on_step_onset(0.6, 5, context=1)
+        p.lift_amplitude(0.20, 1)
+        p.on_contact_reflex(reflex(kind, 1.0))
+        return float(p.weights[1, 15])
+
+    trace = math.exp(-1.0 / 4.0)  # the step before's, 1 s after its gate (trace_tau_s 4 s)
+    assert after(False, 0.25) == pytest.approx(0.25 + 0.1 * trace)
+    assert after(True, 0.25) == pytest.approx(0.25 + 0.25 * trace)
+    assert after(True, -0.25, kind="extension") == pytest.approx(-0.25 - 0.25 * trace)
+    assert after(True, 0.05) == after(False, 0.05) == pytest.approx(0.05 - 0.1 * trace)  # not committed
+    assert not ImprovedConfig().commit_to_bound
