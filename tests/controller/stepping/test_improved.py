@@ -795,7 +795,7 @@ def test_with_plain_on_top_shortens_a_plain_step_on_top_learns_shorter_and_the_s
     assert not ImprovedConfig().plain_on_top_shortens
 
 
-def test_with_on_top_extends_before_a_tucked_crossing_on_top_teaches_a_short_committed_step_before_longer():
+def test_with_on_top_extends_before_a_crossing_on_top_teaches_a_short_step_before_longer():
     """Round 20: a tucked crossing (the longest swing) that came down on top took off beyond its
     window, so the step before was too short whichever branch rule 8 had committed it to: that
     lesson moves a weight committed to the short branch up; the long branch is committed as before.
