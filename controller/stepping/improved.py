@@ -229,14 +229,16 @@ before that run required, nor on 72-85, run after (12/14 against 13/14).
 ``keeps_burst_tucked_rows``: rule 14 in the contexts that start tucked too; under range noise
 0.04 m on 44-57 it moved the late mistakes, it did not end them (docs/improved.md, "Round 19").
 
-Four of round 20, off by default, for the late mistakes at the tucked crossing's far edge under
+Five of round 20, off by default, for the late mistakes at the tucked crossing's far edge under
 range noise 0.04 m and with the plant 10% slower than believed (docs/improved.md, "Round 20"):
 ``on_top_extends_before`` (a tucked crossing that came down on top teaches a step before committed
 to the short branch "longer", rule 8 notwithstanding), ``plain_on_top_shortens`` (a swing that
 did not lift and came down on top learns "shorter" for its own gate, "longer" for the gates
 before), ``edge_on_cell`` (a context that starts tucked lifts below the cell boundary nearest its
-tucked range at the sensed speed) and ``commit_to_bound`` (rule 8 moves a committed weight toward
-its bound by its trace's fraction of the way, the branch's extreme). None cut the late mistakes
+tucked range at the sensed speed), ``tucked_mismatch_s`` (that range moves nearer by so many
+seconds times how much slower the plant is than believed: the tucked swing lasts as long and
+covers less ground) and ``commit_to_bound`` (rule 8 moves a committed weight toward its bound by
+its trace's fraction of the way, the branch's extreme). None cut the late mistakes
 under both conditions: ``commit_to_bound`` cut them under range noise (no mistake after trial 100
 on 27/28 seeds of 44-71 against 24/28), but lost a seed with the plant slower (10/14 against 11/14
 on 44-57) and early trials at default conditions (no mistake after 50 on 21/26 against 23/26 on
@@ -367,6 +369,12 @@ class ImprovedConfig:
     commit_to_bound: bool = setting(False, doc="with commit_earlier_s, a committed weight moves toward its "
                                     "bound by its trace's fraction of the way (at trace 1: the bound): its "
                                     "branch's extreme, the farthest from the gap between the two (round 20)")
+    tucked_mismatch_s: float = setting(0.0, "s", 0.0, 10.0,
+                                       "a context that starts tucked lifts this many seconds times the "
+                                       "believed less the sensed ground speed nearer (farther if the plant is "
+                                       "faster), once they differ as stance_follows_speed asks (the same wait "
+                                       "and deadband): the tucked swing covers less ground than the gait "
+                                       "expects (0: off; round 20)")
     lifting_descend_phase: float = setting(0.84, "(fraction of the swing)", 0.0, 0.99,
                                            "in the contexts that learn their lift, a tucked swing's foot starts "
                                            "down at this phase (0: the gait's tuck_descend_phase, 0.72; rule 18, "
@@ -710,13 +718,17 @@ class ImprovedPremotor:
         ``stance_follows_speed``, the sensed ground speed once ``stance_speed_after`` closing speeds
         are fused and it differs from the belief by more than ``stance_speed_deadband_m_s``, else
         the belief; NaN without the setting (the gait's own)."""
-        c = self.config
-        if not c.stance_follows_speed:
+        if not self.config.stance_follows_speed:
             return math.nan
-        if (self.speed_samples >= c.stance_speed_after
-                and abs(self.ground_speed_m_s - self._believed_m_s) > c.stance_speed_deadband_m_s):
-            return self.ground_speed_m_s
-        return self._believed_m_s
+        return self.ground_speed_m_s if self._speed_differs() else self._believed_m_s
+
+    def _speed_differs(self) -> bool:
+        """Whether the sensed ground speed is to be believed over the told one: ``stance_speed_after``
+        closing speeds fused, and more than ``stance_speed_deadband_m_s`` from it (one gate's, just
+        after acquiring a target, can be off by more)."""
+        c = self.config
+        return (self.speed_samples >= c.stance_speed_after
+                and abs(self.ground_speed_m_s - self._believed_m_s) > c.stance_speed_deadband_m_s)
 
     def _at_sensed_speed(self, range_m: float) -> float:
         """A time to contact given as gated range at the believed ground speed [m], as gated
@@ -730,6 +742,9 @@ class ImprovedPremotor:
         limit = float(self.lift_ranges[row])
         if self._tucked_rows[row]:
             limit = self._at_sensed_speed(limit)
+            if self.config.tucked_mismatch_s > 0.0 and self._speed_differs():
+                # the tucked swing lasts as long at any speed, and covers less ground on a slower plant
+                limit -= self.config.tucked_mismatch_s * (self._believed_m_s - self.ground_speed_m_s)
             if self.config.edge_on_cell:  # the nearest cell boundary: one decision per cell
                 limit = round(limit / self._cell_width_m) * self._cell_width_m
             return limit

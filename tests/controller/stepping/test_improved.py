@@ -858,3 +858,23 @@ def test_with_commit_to_bound_a_committed_weight_moves_its_traces_fraction_of_th
     assert after(True, -0.25, kind="extension") == pytest.approx(-0.25 - 0.25 * trace)
     assert after(True, 0.05) == after(False, 0.05) == pytest.approx(0.05 - 0.1 * trace)  # not committed
     assert not ImprovedConfig().commit_to_bound
+
+
+def test_with_tucked_mismatch_s_a_tucked_context_lifts_nearer_on_a_plant_slower_than_believed():
+    """Round 20: a fully tucked swing lasts as long at any speed, so on a plant slower than the
+    controller believes it covers less ground, and its take-off window's far edge comes nearer
+    than the time to contact at the sensed speed puts it. With the setting the tucked range moves
+    by ``tucked_mismatch_s`` x (believed - sensed), once the sensed speed is to be believed (the
+    wait and the deadband of ``stance_follows_speed``); within them, or off, it is as before."""
+    def limit(mismatch_s: float, speed_m_s: float, samples: int = 20, row: int = 0) -> float:
+        p = _tucking(tucked_mismatch_s=mismatch_s)
+        p.ground_speed_m_s, p.speed_samples = speed_m_s, samples  # as rule 10's fused closing speeds would
+        return p._lift_limit_m(row)
+
+    assert limit(0.0, 0.45) == pytest.approx(0.252)  # rule 9 at the sensed speed
+    assert limit(0.6, 0.45) == pytest.approx(0.252 - 0.6 * 0.05)
+    assert limit(0.6, 0.55) == pytest.approx(0.308 + 0.6 * 0.05)
+    assert limit(0.6, 0.45, samples=19) == limit(0.0, 0.45)  # before the wait
+    assert limit(0.6, 0.49) == limit(0.0, 0.49)  # within the deadband (0.02 m/s)
+    assert limit(0.6, 0.45, row=3) == limit(0.0, 0.45, row=3)  # a context that learns its lift
+    assert ImprovedConfig().tucked_mismatch_s == 0.0
