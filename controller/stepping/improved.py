@@ -239,10 +239,11 @@ tucked range at the sensed speed), ``tucked_mismatch_s`` (that range moves neare
 seconds times how much slower the plant is than believed: the tucked swing lasts as long and
 covers less ground) and ``commit_to_bound`` (rule 8 moves a committed weight toward its bound by
 its trace's fraction of the way, the branch's extreme). None cut the late mistakes
-under both conditions: ``commit_to_bound`` cut them under range noise (no mistake after trial 100
-on 27/28 seeds of 44-71 against 24/28), but lost a seed with the plant slower (10/14 against 11/14
-on 44-57) and early trials at default conditions (no mistake after 50 on 21/26 against 23/26 on
-44-69), which the rule written before those runs did not allow.
+under both conditions: ``commit_to_bound`` cut them under range noise on 44-71 (no mistake after
+trial 100 on 27/28 seeds against 24/28; on 72-85, run after the decision, 11/14 against 12/14),
+but lost a seed with the plant slower (10/14 against 11/14 on 44-57) and early trials at default
+conditions (no mistake after 50 on 21/26 against 23/26 on 44-69), which the rule written before
+those runs did not allow.
 
 A learning rate that falls as a synapse is trained (``settle_reflexes``: each weight's step is
 ``learning_rate_s / (1 + n / settle_reflexes)``, ``n`` the trace it was trained with) is there
