@@ -770,6 +770,16 @@ def test_with_stance_follows_speed_the_stance_is_told_the_sensed_speed_beyond_th
     assert told(True, [0.45] * 5, after=5) == pytest.approx(slow, abs=0.005)
 
 
+def _step_before_then(p: ImprovedPremotor, row: int, cell: int, range_m: float, r: Reflex) -> None:
+    """The step before gated at cell 15 (0.60 m: beyond every lift range) at 0 s, a gate at ``cell``
+    and ``range_m`` at 0.6 s, and the reflex ``r``."""
+    p.on_step_onset(0.0, 15, context=row)
+    p.lift_amplitude(0.60, row)
+    p.on_step_onset(0.6, cell, context=row)
+    p.lift_amplitude(range_m, row)
+    p.on_contact_reflex(r)
+
+
 def test_with_plain_on_top_shortens_a_plain_step_on_top_learns_shorter_and_the_step_before_longer():
     """Round 20: in a context that starts tucked, a swing that did not lift and came down on top of
     the block was too long (a plain step cannot clear it; shorter, the next gate lifts), and the
@@ -778,11 +788,7 @@ def test_with_plain_on_top_shortens_a_plain_step_on_top_learns_shorter_and_the_s
     def lesson(on: bool, row: int = 1, range_m: float = 0.30, cause: str = "foot_on_top") -> tuple[float, float]:
         p = _tucking(plain_on_top_shortens=on, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.0,
                      flip_at=2.0, learning_rate_s=0.1, blend_readout=False, settle_lifting=0.0)
-        p.on_step_onset(0.0, 15, context=row)
-        p.lift_amplitude(0.60, row)  # the step before: beyond every lift range
-        p.on_step_onset(0.6, 7, context=row)
-        p.lift_amplitude(range_m, row)
-        p.on_contact_reflex(reflex("extension", 1.0, cause=cause))
+        _step_before_then(p, row, 7, range_m, reflex("extension", 1.0, cause=cause))
         return float(p.weights[row, 7]), float(p.weights[row, 15])
 
     plain, before = lesson(False)
@@ -804,11 +810,7 @@ def test_with_on_top_extends_before_a_crossing_on_top_teaches_a_short_step_befor
         p = _tucking(on_top_extends_before=on, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.1,
                      flip_at=2.0, learning_rate_s=0.1, blend_readout=False)
         p.weights[1, 15] = w
-        p.on_step_onset(0.0, 15, context=1)
-        p.lift_amplitude(0.60, 1)
-        p.on_step_onset(0.6, 5, context=1)
-        p.lift_amplitude(crossing_m, 1)  # within 0.28 m: fully tucked
-        p.on_contact_reflex(reflex("extension", 1.0))
+        _step_before_then(p, 1, 5, crossing_m, reflex("extension", 1.0))  # within 0.28 m: fully tucked
         return float(p.weights[1, 15])
 
     assert before(False) < -0.3  # off: rule 8 moves it further along its own sign
@@ -845,11 +847,7 @@ def test_with_commit_to_bound_a_committed_weight_moves_its_traces_fraction_of_th
         p = _tucking(commit_to_bound=on, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.1,
                      flip_at=2.0, learning_rate_s=0.1, blend_readout=False, weight_limit_s=0.5)
         p.weights[1, 15] = w
-        p.on_step_onset(0.0, 15, context=1)
-        p.lift_amplitude(0.60, 1)
-        p.on_step_onset(0.6, 5, context=1)
-        p.lift_amplitude(0.20, 1)
-        p.on_contact_reflex(reflex(kind, 1.0))
+        _step_before_then(p, 1, 5, 0.20, reflex(kind, 1.0))
         return float(p.weights[1, 15])
 
     trace = math.exp(-1.0 / 4.0)  # the step before's, 1 s after its gate (trace_tau_s 4 s)
