@@ -876,3 +876,61 @@ def test_with_tucked_mismatch_s_a_tucked_context_lifts_nearer_on_a_plant_slower_
     assert limit(0.6, 0.49) == limit(0.0, 0.49)  # within the deadband (0.02 m/s)
     assert limit(0.6, 0.45, row=3) == limit(0.0, 0.45, row=3)  # a context that learns its lift
     assert ImprovedConfig().tucked_mismatch_s == 0.0
+
+
+def test_with_near_edge_s_a_crossing_near_its_edge_moves_the_plain_step_before_away_from_the_gap():
+    """Round 21: a tucked crossing gated within ``near_edge_m`` of its lift range's edge (0.28 m in
+    a context that starts tucked) took off near its window's far edge: before any reflex, the plain
+    step before it moves ``near_edge_s`` along its committed branch (extension if uncommitted).
+    Not for a crossing deeper in the range, a gate beyond it (a plain step), a lifted step before,
+    or a context that learns its lift; off by default."""
+    def before(near_s: float, w: float = 0.0, range_m: float = 0.26, row: int = 1,
+               before_m: float = 0.60, before_row: int | None = None) -> float:
+        p = _tucking(near_edge_s=near_s, near_edge_m=0.04, commit_earlier_s=0.1)
+        p.lifts[3] = 3.44  # row 3 learnt a tucked lift: its crossings are tucked too, within 0.20 m
+        before_row = row if before_row is None else before_row
+        p.weights[before_row, 15] = w
+        p.on_step_onset(0.0, 15, context=before_row)
+        p.lift_amplitude(before_m, before_row)
+        p.on_step_onset(0.6, int(range_m / 0.04), context=row)
+        p.lift_amplitude(range_m, row)
+        return float(p.weights[before_row, 15])
+
+    assert before(0.0) == 0.0  # off: no reflex, no change
+    assert before(0.05) == pytest.approx(0.05)  # uncommitted: extension, the crossing deeper
+    assert before(0.05, w=0.3) == pytest.approx(0.35)  # the long branch: longer
+    assert before(0.05, w=-0.3) == pytest.approx(-0.35)  # the short branch: shorter (the next gate plain)
+    assert before(0.05, w=-0.05) == pytest.approx(0.0)  # not committed (below commit_earlier_s)
+    assert before(0.05, w=0.48) == pytest.approx(0.5)  # within the bound
+    assert before(0.05, range_m=0.20) == 0.0  # deeper than near_edge_m within the range
+    assert before(0.05, range_m=0.30) == 0.0  # beyond the range: a plain step, no crossing
+    assert before(0.05, before_m=0.27) == 0.0  # the step before lifted itself
+    assert before(0.05, row=3, range_m=0.18, before_row=1) == 0.0  # a crossing of a context that learns its lift
+    assert before(0.05, before_row=3) == 0.0  # the step before was gated in a context that learns its lift
+    assert ImprovedConfig().near_edge_s == 0.0
+
+
+def test_with_near_edge_plain_a_plain_step_just_beyond_the_edge_learns_shorter_as_it_is_gated():
+    """Round 21: a plain step gated within ``near_edge_m`` beyond the lift range's edge (0.28 m in a
+    context that starts tucked) is the last before the crossing; a long one leaves the crossing at
+    the face. With the setting its own weight moves ``near_edge_s`` shorter at the gate, so this
+    step's burst is already shorter. Not farther out, not a crossing, not in a context that learns
+    its lift; off by default, and nothing without ``near_edge_s``."""
+    def plain(on: bool, range_m: float = 0.30, row: int = 1, near_s: float = 0.05, w: float = 0.1) -> float:
+        p = _tucking(near_edge_s=near_s, near_edge_plain=on, near_edge_m=0.04)
+        cell = int(range_m / 0.04)
+        p.weights[row, cell] = w
+        p.on_step_onset(0.0, cell, context=row)
+        p.lift_amplitude(range_m, row)
+        if range_m >= 0.28:  # a plain step (a crossing's burst is longer by tucked_extra_s)
+            assert p.burst_s(0.0) == pytest.approx(BASE + float(p.weights[row, cell]))  # this step's burst
+        return float(p.weights[row, cell])
+
+    assert plain(False) == pytest.approx(0.1)
+    assert plain(True) == pytest.approx(0.05)
+    assert plain(True, w=-0.48) == pytest.approx(-0.5)  # within the bound
+    assert plain(True, range_m=0.33) == pytest.approx(0.1)  # farther than near_edge_m beyond the edge
+    assert plain(True, range_m=0.26) == pytest.approx(0.1)  # within the range: a crossing
+    assert plain(True, row=3, range_m=0.42) == pytest.approx(0.1)  # a context that learns its lift (0.40 m)
+    assert plain(True, near_s=0.0) == pytest.approx(0.1)
+    assert not ImprovedConfig().near_edge_plain
