@@ -934,3 +934,41 @@ def test_with_near_edge_plain_a_plain_step_just_beyond_the_edge_learns_shorter_a
     assert plain(True, row=3, range_m=0.42) == pytest.approx(0.1)  # a context that learns its lift (0.40 m)
     assert plain(True, near_s=0.0) == pytest.approx(0.1)
     assert not ImprovedConfig().near_edge_plain
+
+
+def test_with_near_edge_lifting_rule_20_acts_in_a_context_that_learns_its_lift_once_it_is_tucked():
+    """Round 22: in a context that learns its lift (rows 2-3 here), once its lift is tucked (3.44:
+    its edge 0.20 m, rule 11), a plain step gated just beyond the edge learns shorter, and a
+    crossing gated just within it moves the plain step before it, of such a context, away from the
+    gap. Not below the tuck (lift 1.9: the edge 0.40 m, a lifted swing), not from a context of the
+    other kind or one not tucked; off by default."""
+    def premotor(on: bool, lift: float) -> ImprovedPremotor:
+        p = _tucking(near_edge_s=0.05, near_edge_plain=True, near_edge_lifting=on, near_edge_m=0.04,
+                     commit_earlier_s=0.1, blend_readout=False)
+        p.lifts[3] = lift
+        return p
+
+    def plain(on: bool, lift: float = 3.44) -> float:
+        p = premotor(on, lift)
+        p.on_step_onset(0.0, 5, context=3)  # 0.21 m: beyond the tucked edge, within 0.04 m of it
+        p.lift_amplitude(0.21, 3)
+        return float(p.weights[3, 5])
+
+    def before(on: bool, before_row: int = 3, lift: float = 3.44) -> float:
+        p = premotor(on, lift)
+        p.weights[before_row, 15] = 0.3  # committed to the long branch
+        p.on_step_onset(0.0, 15, context=before_row)  # 0.60 m: beyond every range, no near miss
+        p.lift_amplitude(0.60, before_row)
+        p.on_step_onset(0.6, 4, context=3)  # a tucked crossing at 0.18 m, within 0.04 m of 0.20 m
+        p.lift_amplitude(0.18, 3)
+        return float(p.weights[before_row, 15])
+
+    assert plain(False) == 0.0
+    assert plain(True) == pytest.approx(-0.05)
+    assert plain(True, lift=1.9) == 0.0  # below the tuck: 0.21 m is a lifted swing's
+    assert before(False) == pytest.approx(0.3)
+    assert before(True) == pytest.approx(0.35)
+    assert before(True, before_row=1) == pytest.approx(0.3)  # a context that starts tucked: the other kind
+    assert before(True, before_row=2) == pytest.approx(0.3)  # a context whose lift is not tucked (1.9)
+    assert before(True, lift=1.9) == pytest.approx(0.3)  # 0.18 m is then a lifted swing's, no crossing's edge
+    assert not ImprovedConfig().near_edge_lifting
