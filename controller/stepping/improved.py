@@ -805,8 +805,9 @@ class ImprovedPremotor:
         limit = self._lift_limit_m(row)
         if gated_range_m is None or not gated_range_m < limit:
             self._lift_row = None
-            if self.config.near_edge_plain and gated_range_m is not None and self._near_edge_row(row):
-                self._near_edge_plain(gated_range_m, limit)
+            if (self.config.near_edge_plain and self.config.near_edge_s > 0.0 and gated_range_m is not None
+                    and self._near_edge_row(row)):
+                self._near_edge_plain(row, gated_range_m, limit)
             return 1.0
         self._lift_row = row
         if self._gates:
@@ -824,7 +825,7 @@ class ImprovedPremotor:
             if self._gates:
                 self._gates[-1].tuck = fraction
             if fraction > 0.0 and self.config.near_edge_s > 0.0 and self._near_edge_row(row):
-                self._near_edge(gated_range_m, limit)
+                self._near_edge(row, gated_range_m, limit)
         return amplitude
 
     def _near_edge_row(self, row: int) -> bool:
@@ -835,40 +836,42 @@ class ImprovedPremotor:
         return (self.config.near_edge_lifting and self._tuck is not None
                 and self._tuck(float(self.lifts[row])) > 0.0)
 
-    def _near_edge_plain(self, gated_range_m: float, limit_m: float) -> None:
-        """A plain step gated within ``near_edge_m`` beyond its lift range's edge is the last before
-        the crossing, from near its window's far edge: a long one puts the crossing's take-off at
-        the block's face (too close), a short one in the window. Its own weight moves
-        ``near_edge_s`` shorter as it is gated, before any mistake."""
-        c = self.config
-        cell = self.memory.cell
-        if (not c.learning or c.near_edge_s <= 0.0 or cell is None or self.context is None
-                or gated_range_m >= limit_m + c.near_edge_m):
-            return
-        held = float(self.weights[self.context, cell])
-        self.weights[self.context, cell] = max(-c.weight_limit_s, held - c.near_edge_s)
+    def _nudge(self, row: int, cell: int, change_s: float) -> None:
+        """Rule 20's one move: the weight of (``row``, ``cell``) by ``change_s``, within its bound."""
+        bound = self.config.weight_limit_s
+        self.weights[row, cell] = min(bound, max(-bound, float(self.weights[row, cell]) + change_s))
         self.near_edge_nudges += 1
 
-    def _near_edge(self, gated_range_m: float, limit_m: float) -> None:
-        """A tucked crossing gated within ``near_edge_m`` of its lift range's edge took off near the
-        far edge of its window, where a little scatter (the sensor's, the stride's) lands it on top
-        or makes it a plain step to the face: the plain step before it moves its weight
-        ``near_edge_s`` away from the gap between its two branches (toward its sign; extension if
-        it is not committed to one, ``commit_earlier_s``), before any mistake. Only from reflexes,
-        a learner stops where its mistakes stop: at the window's edge."""
+    def _near_edge_plain(self, row: int, gated_range_m: float, limit_m: float) -> None:
+        """A plain step (of the context ``row``) gated within ``near_edge_m`` beyond its lift
+        range's edge is the last before the crossing, from near its window's far edge: a long one
+        puts the crossing's take-off at the block's face (too close), a short one in the window.
+        Its own weight moves ``near_edge_s`` shorter as it is gated, before any mistake."""
+        c = self.config
+        cell = self.memory.cell
+        if not c.learning or cell is None or gated_range_m >= limit_m + c.near_edge_m:
+            return
+        self._nudge(row, cell, -c.near_edge_s)
+
+    def _near_edge(self, row: int, gated_range_m: float, limit_m: float) -> None:
+        """A tucked crossing (of the context ``row``) gated within ``near_edge_m`` of its lift
+        range's edge took off near the far edge of its window, where a little scatter (the
+        sensor's, the stride's) lands it on top or makes it a plain step to the face: the plain
+        step before it moves its weight ``near_edge_s`` away from the gap between its two branches
+        (toward its sign; extension if it is not committed to one, ``commit_earlier_s``), before
+        any mistake. Only from reflexes, a learner stops where its mistakes stop: at the window's
+        edge."""
         c = self.config
         if not c.learning or gated_range_m < limit_m - c.near_edge_m or len(self._gates) < 2:
             return
         before = self._gates[-2]
         if before.cell is None or before.row is None or before.lifted is not None:
             return
-        if self._tucked_rows[before.row] != self._tucked_rows[self._lift_row] or not self._near_edge_row(before.row):
+        if self._tucked_rows[before.row] != self._tucked_rows[row] or not self._near_edge_row(before.row):
             return
         held = float(self.weights[before.row, before.cell])
         way = -1.0 if held < 0.0 and abs(held) >= c.commit_earlier_s > 0.0 else 1.0
-        moved = held + way * c.near_edge_s
-        self.weights[before.row, before.cell] = min(c.weight_limit_s, max(-c.weight_limit_s, moved))
-        self.near_edge_nudges += 1
+        self._nudge(before.row, before.cell, way * c.near_edge_s)
 
     def tucked_descend_phase(self) -> float:
         """Where the tucked swing of the step cycle just gated starts down (asked by the loop at

@@ -770,13 +770,21 @@ def test_with_stance_follows_speed_the_stance_is_told_the_sensed_speed_beyond_th
     assert told(True, [0.45] * 5, after=5) == pytest.approx(slow, abs=0.005)
 
 
-def _step_before_then(p: ImprovedPremotor, row: int, cell: int, range_m: float, r: Reflex) -> None:
-    """The step before gated at cell 15 (0.60 m: beyond every lift range) at 0 s, a gate at ``cell``
-    and ``range_m`` at 0.6 s, and the reflex ``r``."""
-    p.on_step_onset(0.0, 15, context=row)
-    p.lift_amplitude(0.60, row)
+def _step_before_gate(p: ImprovedPremotor, row: int, cell: int, range_m: float, before_row: int | None = None,
+                      before_m: float = 0.60) -> None:
+    """The step before gated at cell 15 and ``before_m`` (default 0.60 m: beyond every lift range) at
+    0 s in the context ``before_row`` (default ``row``), then a gate at ``cell`` and ``range_m`` at
+    0.6 s in the context ``row``."""
+    before_row = row if before_row is None else before_row
+    p.on_step_onset(0.0, 15, context=before_row)
+    p.lift_amplitude(before_m, before_row)
     p.on_step_onset(0.6, cell, context=row)
     p.lift_amplitude(range_m, row)
+
+
+def _step_before_then(p: ImprovedPremotor, row: int, cell: int, range_m: float, r: Reflex) -> None:
+    """:func:`_step_before_gate`, then the reflex ``r``."""
+    _step_before_gate(p, row, cell, range_m)
     p.on_contact_reflex(r)
 
 
@@ -890,10 +898,7 @@ def test_with_near_edge_s_a_crossing_near_its_edge_moves_the_plain_step_before_a
         p.lifts[3] = 3.44  # row 3 learnt a tucked lift: its crossings are tucked too, within 0.20 m
         before_row = row if before_row is None else before_row
         p.weights[before_row, 15] = w
-        p.on_step_onset(0.0, 15, context=before_row)
-        p.lift_amplitude(before_m, before_row)
-        p.on_step_onset(0.6, int(range_m / 0.04), context=row)
-        p.lift_amplitude(range_m, row)
+        _step_before_gate(p, row, int(range_m / 0.04), range_m, before_row, before_m)
         return float(p.weights[before_row, 15])
 
     assert before(0.0) == 0.0  # off: no reflex, no change
@@ -957,10 +962,7 @@ def test_with_near_edge_lifting_rule_20_acts_in_a_context_that_learns_its_lift_o
     def before(on: bool, before_row: int = 3, lift: float = 3.44) -> float:
         p = premotor(on, lift)
         p.weights[before_row, 15] = 0.3  # committed to the long branch
-        p.on_step_onset(0.0, 15, context=before_row)  # 0.60 m: beyond every range, no near miss
-        p.lift_amplitude(0.60, before_row)
-        p.on_step_onset(0.6, 4, context=3)  # a tucked crossing at 0.18 m, within 0.04 m of 0.20 m
-        p.lift_amplitude(0.18, 3)
+        _step_before_gate(p, 3, 4, 0.18, before_row)  # a tucked crossing at 0.18 m, within 0.04 m of 0.20 m
         return float(p.weights[before_row, 15])
 
     assert plain(False) == 0.0
