@@ -912,7 +912,7 @@ def test_with_near_edge_s_a_crossing_near_its_edge_moves_the_plain_step_before_a
     assert before(0.05, before_m=0.27) == 0.0  # the step before lifted itself
     assert before(0.05, row=3, range_m=0.18, before_row=1) == 0.0  # a crossing of a context that learns its lift
     assert before(0.05, before_row=3) == 0.0  # the step before was gated in a context that learns its lift
-    assert ImprovedConfig().near_edge_s == 0.0
+    assert ImprovedConfig().near_edge_s == 0.05  # a default since round 23
 
 
 def test_with_near_edge_plain_a_plain_step_just_beyond_the_edge_learns_shorter_as_it_is_gated():
@@ -938,7 +938,7 @@ def test_with_near_edge_plain_a_plain_step_just_beyond_the_edge_learns_shorter_a
     assert plain(True, range_m=0.26) == pytest.approx(0.1)  # within the range: a crossing
     assert plain(True, row=3, range_m=0.42) == pytest.approx(0.1)  # a context that learns its lift (0.40 m)
     assert plain(True, near_s=0.0) == pytest.approx(0.1)
-    assert not ImprovedConfig().near_edge_plain
+    assert ImprovedConfig().near_edge_plain  # a default since round 23
 
 
 def test_with_near_edge_lifting_rule_20_acts_in_a_context_that_learns_its_lift_once_it_is_tucked():
@@ -973,4 +973,4 @@ def test_with_near_edge_lifting_rule_20_acts_in_a_context_that_learns_its_lift_o
     assert before(True, before_row=1) == pytest.approx(0.3)  # a context that starts tucked: the other kind
     assert before(True, before_row=2) == pytest.approx(0.3)  # a context whose lift is not tucked (1.9)
     assert before(True, lift=1.9) == pytest.approx(0.3)  # 0.18 m is then a lifted swing's, no crossing's edge
-    assert not ImprovedConfig().near_edge_lifting
+    assert ImprovedConfig().near_edge_lifting  # a default since round 23
