@@ -974,3 +974,64 @@ def test_with_near_edge_lifting_rule_20_acts_in_a_context_that_learns_its_lift_o
     assert before(True, before_row=2) == pytest.approx(0.3)  # a context whose lift is not tucked (1.9)
     assert before(True, lift=1.9) == pytest.approx(0.3)  # 0.18 m is then a lifted swing's, no crossing's edge
     assert ImprovedConfig().near_edge_lifting  # a default since round 23
+
+
+def test_with_near_close_m_a_tucked_crossing_gated_too_near_shortens_the_plain_step_before():
+    """Round 23: in a context that learns its lift (rows 2-3 here), once its lift is tucked (3.44),
+    a tucked crossing gated nearer than ``near_close_m`` took off at its window's near edge: the
+    plain step before it, of such a context, moves ``near_edge_s`` shorter whatever its sign. Not
+    for a crossing gated farther, below the tuck, in a context that starts tucked, after a step
+    before of the other kind, or without ``near_edge_s``; off by default."""
+    def before(close_m: float, range_m: float = 0.08, row: int = 3, before_row: int = 3, lift: float = 3.44,
+               w: float = 0.3, near_s: float = 0.05) -> float:
+        p = _tucking(near_edge_s=near_s, near_edge_plain=False, near_edge_lifting=True, near_close_m=close_m,
+                     commit_earlier_s=0.1, blend_readout=False)
+        p.lifts[3] = lift
+        p.lifts[2] = lift
+        p.weights[before_row, 15] = w
+        _step_before_gate(p, row, int(range_m / 0.04), range_m, before_row)
+        return float(p.weights[before_row, 15])
+
+    assert before(0.0) == pytest.approx(0.3)  # off
+    assert before(0.10) == pytest.approx(0.25)  # 0.08 m: nearer than 0.10 m, the long step before shorter
+    assert before(0.10, w=-0.3) == pytest.approx(-0.35)  # a short one shorter still
+    assert before(0.10, w=0.0) == pytest.approx(-0.05)
+    assert before(0.10, w=-0.48) == pytest.approx(-0.5)  # within the bound
+    assert before(0.10, range_m=0.12) == pytest.approx(0.3)  # gated farther: no near miss
+    assert before(0.10, range_m=0.10) == pytest.approx(0.3)  # at near_close_m: not nearer
+    assert before(0.10, near_s=0.0) == pytest.approx(0.3)  # the step is near_edge_s
+    assert before(0.10, lift=1.9) == pytest.approx(0.3)  # below the tuck: a lifted swing, no tucked crossing
+    assert before(0.10, row=1, before_row=1) == pytest.approx(0.3)  # a context that starts tucked
+    assert before(0.10, before_row=1) == pytest.approx(0.3)  # the step before of the other kind
+    assert before(0.10, before_row=2) == pytest.approx(0.25)  # the same kind, tucked: another row of it
+    assert ImprovedConfig().near_close_m == 0.0
+
+
+def test_with_plain_swing_shortens_a_plain_step_reaching_a_tall_block_learns_shorter():
+    """Round 23: in a context that learns its lift, once that lift is tucked (3.44: its edge 0.20 m),
+    a step gated beyond the edge did not lift; a contact in the air in its own swing means it
+    reached the block, which a plain step cannot clear: its gate learns placement, the step before
+    extension (so the next gate lifts). Only a contact in the air of such a swing, only in such a
+    context once tucked; off by default."""
+    def lesson(on: bool, row: int = 3, range_m: float = 0.22, lift: float = 3.44, cause: str = "shin",
+               swing: bool = True) -> tuple[float, float]:
+        p = _tucking(plain_swing_shortens=on, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.0,
+                     flip_at=2.0, learning_rate_s=0.1, blend_readout=False, settle_lifting=0.0,
+                     near_edge_s=0.0)
+        p.lifts[3] = lift
+        cell = int(range_m / 0.04)
+        _step_before_then(p, row, cell, range_m, reflex("extension", 1.0, cause=cause, swing=swing, phase=0.6))
+        return float(p.weights[row, cell]), float(p.weights[row, 15])
+
+    plain, before = lesson(False)
+    assert plain > 0.0 and before > 0.0  # off: the reflex's own kind for both
+    plain, before = lesson(True)
+    assert plain < 0.0 and before > 0.0
+    plain, before = lesson(True, cause="foot_in_air")
+    assert plain < 0.0 and before > 0.0
+    assert all(w > 0.0 for w in lesson(True, range_m=0.18))  # within the edge: a tucked crossing
+    assert all(w > 0.0 for w in lesson(True, lift=1.9, range_m=0.45))  # the lift not tucked (edge 0.40 m)
+    assert all(w > 0.0 for w in lesson(True, row=1, range_m=0.30))  # a context that starts tucked
+    assert all(w > 0.0 for w in lesson(True, cause="foot_on_top"))  # not a contact in the air
+    assert all(w > 0.0 for w in lesson(True, swing=False))  # in stance
+    assert not ImprovedConfig().plain_swing_shortens
