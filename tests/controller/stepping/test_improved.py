@@ -981,7 +981,8 @@ def test_with_near_close_m_a_tucked_crossing_gated_too_near_shortens_the_plain_s
     a tucked crossing gated nearer than ``near_close_m`` took off at its window's near edge: the
     plain step before it, of such a context, moves ``near_edge_s`` shorter whatever its sign. Not
     for a crossing gated farther, below the tuck, in a context that starts tucked, after a step
-    before of the other kind, or without ``near_edge_s``; off by default."""
+    before of the other kind, or without ``near_edge_s``; on by default
+    since round 23."""
     def before(close_m: float, range_m: float = 0.08, row: int = 3, before_row: int = 3, lift: float = 3.44,
                w: float = 0.3, near_s: float = 0.05) -> float:
         p = _tucking(near_edge_s=near_s, near_edge_plain=False, near_edge_lifting=True, near_close_m=close_m,
@@ -1004,7 +1005,7 @@ def test_with_near_close_m_a_tucked_crossing_gated_too_near_shortens_the_plain_s
     assert before(0.10, row=1, before_row=1) == pytest.approx(0.3)  # a context that starts tucked
     assert before(0.10, before_row=1) == pytest.approx(0.3)  # the step before of the other kind
     assert before(0.10, before_row=2) == pytest.approx(0.25)  # the same kind, tucked: another row of it
-    assert ImprovedConfig().near_close_m == 0.0
+    assert ImprovedConfig().near_close_m == 0.10  # a default since round 23
 
 
 def test_with_plain_swing_shortens_a_plain_step_reaching_a_tall_block_learns_shorter():
@@ -1012,7 +1013,7 @@ def test_with_plain_swing_shortens_a_plain_step_reaching_a_tall_block_learns_sho
     a step gated beyond the edge did not lift; a contact in the air in its own swing means it
     reached the block, which a plain step cannot clear: its gate learns placement, the step before
     extension (so the next gate lifts). Only a contact in the air of such a swing, only in such a
-    context once tucked; off by default."""
+    context once tucked; on by default since round 23."""
     def lesson(on: bool, row: int = 3, range_m: float = 0.22, lift: float = 3.44, cause: str = "shin",
                swing: bool = True) -> tuple[float, float]:
         p = _tucking(plain_swing_shortens=on, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.0,
@@ -1034,4 +1035,4 @@ def test_with_plain_swing_shortens_a_plain_step_reaching_a_tall_block_learns_sho
     assert all(w > 0.0 for w in lesson(True, row=1, range_m=0.30))  # a context that starts tucked
     assert all(w > 0.0 for w in lesson(True, cause="foot_on_top"))  # not a contact in the air
     assert all(w > 0.0 for w in lesson(True, swing=False))  # in stance
-    assert not ImprovedConfig().plain_swing_shortens
+    assert ImprovedConfig().plain_swing_shortens  # a default since round 23
