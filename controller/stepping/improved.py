@@ -430,7 +430,8 @@ class ImprovedConfig:
                                   "in a context that learns its lift, once its lift is tucked, a tucked "
                                   "crossing gated nearer than this took off at its window's near edge (the "
                                   "shin's side): the plain step before it moves near_edge_s shorter, before any "
-                                  "reflex (0: off; round 23, a default since its second look)")
+                                  "reflex; with near_edge_s and near_edge_lifting, as rule 20 (0: off; round 23, "
+                                  "a default since its second look)")
     lifting_descend_phase: float = setting(0.84, "(fraction of the swing)", 0.0, 0.99,
                                            "in the contexts that learn their lift, a tucked swing's foot starts "
                                            "down at this phase (0: the gait's tuck_descend_phase, 0.72; rule 18, "
@@ -857,7 +858,12 @@ class ImprovedPremotor:
         ``near_edge_lifting`` one that learns its lift once that lift is tucked."""
         if self._tucked_rows[row]:
             return True
-        return (self.config.near_edge_lifting and self._tuck is not None
+        return self.config.near_edge_lifting and self._lift_tucked(row)
+
+    def _lift_tucked(self, row: int) -> bool:
+        """Whether ``row`` is a context that learns its lift and its learnt lift now tucks the swing
+        (where rules 20-22 act in such a context)."""
+        return (not self._tucked_rows[row] and self._tuck is not None
                 and self._tuck(float(self.lifts[row])) > 0.0)
 
     def _nudge(self, row: int, cell: int, change_s: float) -> None:
@@ -962,8 +968,7 @@ class ImprovedPremotor:
             kind, near = "placement", gate
         if (c.plain_swing_shortens and reflex.swing and reflex.cause in ("shin", "foot_in_air")
                 and gate.cell is not None and gate.row is not None and gate.lifted is None
-                and not self._tucked_rows[gate.row] and self._tuck is not None
-                and self._tuck(float(self.lifts[gate.row])) > 0.0):
+                and self._lift_tucked(gate.row)):
             # a plain step of a tall block's context reached the block in its own swing: it cannot
             # clear it, so it was too long, and the step before it too short to let the next gate lift
             kind, near = "placement", gate
