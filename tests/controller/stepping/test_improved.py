@@ -217,7 +217,10 @@ def test_a_tucked_crossing_at_the_bound_is_not_flipped_when_flip_tucked_is_off()
     """A tucked swing already takes the CPG's longest burst: an extension asked of it is answered
     by the gates before it (the step before, longer), not by the other branch (``flip_tucked``)."""
     def tucked(flip_tucked: bool, lift: float) -> ImprovedPremotor:
-        p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(spread_cells=0.0, flip_tucked=flip_tucked, lift_max=3.44),
+        # fresh_beyond_edge off: cell 5's weight is set as if learnt once tucked, not before (rule 23
+        # would clear it at the first gate, the lift range moving from 0.40 m to 0.20 m)
+        p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(spread_cells=0.0, flip_tucked=flip_tucked, lift_max=3.44,
+                                                         fresh_beyond_edge=False),
                              tuck=TUCK, tucked_extra_s=0.3)
         p.lifts[3] = lift
         p.weights[3, 12], p.weights[3, 5] = -0.2, 0.5  # the step before short, the crossing's gate at its bound
@@ -586,6 +589,28 @@ def test_with_blend_readout_the_burst_reads_the_nearer_neighbour_by_the_gated_ra
         ImprovedPremotor(4, 28, BASE, ImprovedConfig(blend_readout=True), cell_width_m=None)
 
 
+def test_with_blend_tucked_rows_a_context_that_starts_tucked_reads_between_two_cells_too():
+    """``blend_tucked_rows``: rule 13 in a context that starts tucked (row 1), within one branch
+    and one side of its lift range's edge (0.28 m at 0.5 m/s: cells 0-6); off by default. (Rule 20
+    off here: it would nudge cell 7, gated just beyond the edge.)"""
+    def gated(on: bool, range_m: float, cell: int, w: float, w_below: float, w_above: float) -> float:
+        config = ImprovedConfig(tucked_contexts=2, lift_max=3.44, blend_tucked_rows=on, near_edge_s=0.0)
+        p = ImprovedPremotor(4, 28, BASE, config, cell_width_m=0.04)
+        p.weights[1, cell] = w
+        p.weights[1, cell - 1], p.weights[1, cell + 1] = w_below, w_above
+        p.on_step_onset(0.0, cell, context=1)
+        p.lift_amplitude(range_m, 1)
+        return p.gated_weight()
+
+    assert gated(True, 0.63, 15, -0.2, 0.0, -0.4) == pytest.approx(0.75 * -0.2 + 0.25 * -0.4)
+    assert gated(False, 0.63, 15, -0.2, 0.0, -0.4) == pytest.approx(-0.2)
+    assert gated(True, 0.63, 15, -0.2, 0.0, 0.4) == pytest.approx(-0.2)  # the other branch
+    assert gated(True, 0.31, 7, -0.2, 0.0, -0.4) == pytest.approx(0.75 * -0.2 + 0.25 * -0.4)
+    assert gated(True, 0.29, 7, -0.2, -0.4, 0.0) == pytest.approx(-0.2)  # cell 6 is across the edge
+    assert gated(True, 0.25, 6, 0.2, 0.4, 0.0) == pytest.approx(0.75 * 0.2 + 0.25 * 0.4)
+    assert not ImprovedConfig().blend_tucked_rows
+
+
 def test_blended_steps_counts_the_step_cycles_whose_burst_the_blend_changed_once_each():
     """``blended_steps`` is how an experiment shows rule 13 never acted (its records then the
     one-hot readout's): a cycle counts once however often its burst is read, and only when the
@@ -678,6 +703,73 @@ def test_with_settle_lifting_a_trained_synapse_learns_less_only_in_the_contexts_
     assert lessons(1.0, 3) == pytest.approx([0.1, 0.1 / 2.0, 0.1 / 3.0])
     assert lessons(1.0, 1) == pytest.approx([0.1, 0.1, 0.1])  # a context that starts tucked: as before
     assert ImprovedConfig().settle_lifting == 1.0  # a default since round 15
+
+
+def test_with_settle_recovers_lessons_that_agree_restore_the_rate_and_a_reversal_settles_it():
+    """``settle_recovers``: in a context that learns its lift, a cell's own lesson that goes the
+    way its last one went halves its training (the rate recovers toward the full one); a lesson
+    the other way adds to it as rule 15 does; a neighbour's credit (a trace below
+    ``settle_own_trace``) never counts as its own; off by default."""
+    def lessons(recovers: bool, kinds: list[str], row: int = 3) -> list[float]:
+        p = _tucking(settle_lifting=1.0, settle_recovers=recovers, spread_cells=0.0, context_share=0.0,
+                     commit_earlier_s=0.0, learning_rate_s=0.1, flip_at=2.0)
+        changes = []
+        for k, kind in enumerate(kinds):
+            t = 100.0 * k  # each trace long gone before the next gate
+            before = float(p.weights[row, 15])
+            p.on_step_onset(t, 15, context=row)
+            p.on_reflex(kind, t)  # its own trace 1 at once
+            changes.append(float(p.weights[row, 15]) - before)
+        return changes
+
+    e, pl = "extension", "placement"
+    assert lessons(False, [e, pl, pl, pl]) == pytest.approx([0.1, -0.1 / 2, -0.1 / 3, -0.1 / 4])
+    # trained 1 (e), 2 (pl reverses), 1 (pl agrees: halved), 0.5 (agrees again)
+    assert lessons(True, [e, pl, pl, pl]) == pytest.approx([0.1, -0.1 / 2, -0.1 / 3, -0.1 / 2])
+    # e, e: trained 1 then halved to 0.5; pl reverses: 1.5; e reverses: 2.5
+    assert lessons(True, [e, e, pl, e]) == pytest.approx([0.1, 0.1 / 2, -0.1 / 1.5, 0.1 / 2.5])
+    assert lessons(True, [e, e, e], row=1) == pytest.approx([0.1, 0.1, 0.1])  # starts tucked: full rate
+    assert not ImprovedConfig().settle_recovers
+
+    # a neighbour's credit (trace below settle_own_trace) neither settles by agreeing nor sets its way
+    p = _tucking(settle_lifting=1.0, settle_recovers=True, spread_cells=1.5, spread_fade=1000.0, context_share=0.0,
+                 commit_earlier_s=0.0, learning_rate_s=0.1, flip_at=2.0)
+    for k in range(2):
+        p.on_step_onset(100.0 * k, 15, context=3)
+        p.on_reflex("extension", 100.0 * k)
+    assert p.last_way[3, 15] == 1.0 and p.last_way[3, 16] == 0.0
+    assert p.trained[3, 15] == pytest.approx(0.5)  # 1, then halved
+    assert p.trained[3, 16] > 1.5  # two neighbour's shares of about 0.8, added as rule 15 adds them
+
+
+def test_with_fresh_beyond_edge_the_cells_a_tucking_lift_range_leaves_behind_start_again():
+    """``fresh_beyond_edge``: in a context that learns its lift (row 3) the lift range starts at
+    0.40 m (cells 0-9); fully tucked, rule 11 moves it to 0.20 m (cells 0-4), and cells 5-9,
+    learnt for a lifted swing, start again (weight and training 0), once; cells on either side
+    keep theirs. Not in a context that starts tucked, not when frozen; on by default (rule 23)."""
+    def run(on: bool = True, row: int = 3, learning: bool = True) -> ImprovedPremotor:
+        p = _tucking(fresh_beyond_edge=on, learning=learning)
+        p.weights[row, :] = 0.4
+        p.trained[row, :] = 3.0
+        p.own_trained[row, :] = 3.0
+        p.lifts[row] = 3.44  # fully tucked
+        p.on_step_onset(0.0, 20, context=row)
+        p.lift_amplitude(0.82, row)
+        return p
+
+    p = run()
+    assert list(p.weights[3, 5:10]) == [0.0] * 5 and list(p.trained[3, 5:10]) == [0.0] * 5
+    assert list(p.own_trained[3, 5:10]) == [0.0] * 5 and p.own_trained[3, 4] == 3.0
+    assert p.weights[3, 4] == 0.4 and p.weights[3, 10] == 0.4 and p.trained[3, 4] == 3.0
+    assert p.fresh_cells == 5
+    p.weights[3, 5:10] = -0.1  # learnt again as plain steps: the same edge resets nothing
+    p.on_step_onset(1.0, 20, context=3)
+    p.lift_amplitude(0.82, 3)
+    assert list(p.weights[3, 5:10]) == [-0.1] * 5 and p.fresh_cells == 5
+    assert (run(on=False).weights[3] == 0.4).all()
+    assert (run(learning=False).weights[3] == 0.4).all()
+    assert (run(row=1).weights[1] == 0.4).all()  # starts tucked: its range never moves with its lift
+    assert ImprovedConfig().fresh_beyond_edge  # a default since round 24
 
 
 def test_a_contact_in_the_air_late_in_a_lifted_swing_raises_the_lift_by_default():
