@@ -538,8 +538,9 @@ class ImprovedPremotor:
         if ((config.spread_at_lift_edge or config.too_close_at_lift_edge or config.blend_readout
              or config.edge_on_cell or config.fresh_beyond_edge)
                 and not (cell_width_m is not None and cell_width_m > 0.0)):
-            raise ValueError(f"improved.spread_at_lift_edge, improved.too_close_at_lift_edge, improved.blend_readout "
-                             f"and improved.edge_on_cell need the encoder's cell width > 0 m, got {cell_width_m!r}")
+            raise ValueError(f"improved.spread_at_lift_edge, improved.too_close_at_lift_edge, improved.blend_readout, "
+                             f"improved.edge_on_cell and improved.fresh_beyond_edge need the encoder's cell width "
+                             f"> 0 m, got {cell_width_m!r}")
         self.config = config
         self.base_burst_s = base_burst_s
         self._cell_width_m = cell_width_m
