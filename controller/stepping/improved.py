@@ -858,7 +858,11 @@ class ImprovedPremotor:
     def _within_lift_range(self, row: int) -> np.ndarray:
         """Per cell, whether its centre lies within the context ``row``'s lift range (the side of
         the lift's edge a cell is on: ``spread_at_lift_edge``, ``too_close_at_lift_edge``)."""
-        return np.arange(self.n_cells) + 0.5 < self._lift_limit_m(row) / self._cell_width_m
+        return self._cells_within(self._lift_limit_m(row))
+
+    def _cells_within(self, range_m: float) -> np.ndarray:
+        """Per cell, whether its centre lies nearer than ``range_m``."""
+        return np.arange(self.n_cells) + 0.5 < range_m / self._cell_width_m
 
     def lift_amplitude(self, gated_range_m: float | None, context: int | None) -> float:
         """The lift of the step cycle just gated (called by the loop at each gate, after
@@ -910,8 +914,7 @@ class ImprovedPremotor:
         self._nearest_edge_m[row] = limit_m
         if not self.config.learning:
             return
-        centres = np.arange(self.n_cells) + 0.5
-        left = (centres >= limit_m / self._cell_width_m) & (centres < edge / self._cell_width_m)
+        left = self._cells_within(edge) & ~self._cells_within(limit_m)
         if left.any():
             self.weights[row, left] = 0.0
             self.trained[row, left] = 0.0

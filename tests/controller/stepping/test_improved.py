@@ -683,21 +683,27 @@ def test_with_keeps_burst_tucked_rows_a_context_that_starts_tucked_keeps_its_cro
     assert burst(True, range_m=0.5) == pytest.approx(BASE - 0.3)  # beyond its range: a plain step
 
 
+def _own_lessons(kinds: list[str], row: int, **config) -> list[float]:
+    """The change of cell 15's weight in context ``row`` by each lesson of ``kinds``, each gated
+    alone (no spread, no sharing, no commit, no flip; learning rate 0.1 s)."""
+    p = _tucking(spread_cells=0.0, context_share=0.0, commit_earlier_s=0.0, learning_rate_s=0.1, flip_at=2.0,
+                 **config)
+    changes = []
+    for k, kind in enumerate(kinds):
+        t = 100.0 * k  # each trace long gone before the next gate
+        before = float(p.weights[row, 15])
+        p.on_step_onset(t, 15, context=row)
+        p.on_reflex(kind, t)  # its own trace 1 at once
+        changes.append(float(p.weights[row, 15]) - before)
+    return changes
+
+
 def test_with_settle_lifting_a_trained_synapse_learns_less_only_in_the_contexts_that_learn_their_lift():
     """Round 15: a tall block's take-off window is a few centimetres, and a full lesson moves the
     step before's stride by many: there a synapse's step falls as it is trained,
     ``learning_rate_s / (1 + trained / settle_lifting)``; the rows that start tucked learn as before."""
     def lessons(settle: float, row: int) -> list[float]:
-        p = _tucking(settle_lifting=settle, spread_cells=0.0, context_share=0.0, commit_earlier_s=0.0,
-                     learning_rate_s=0.1, flip_at=2.0)
-        changes = []
-        for k in range(3):
-            t = 100.0 * k  # each trace long gone before the next gate
-            before = float(p.weights[row, 15])
-            p.on_step_onset(t, 15, context=row)
-            p.on_reflex("extension", t)  # its own trace 1 at once
-            changes.append(float(p.weights[row, 15]) - before)
-        return changes
+        return _own_lessons(["extension"] * 3, row, settle_lifting=settle)
 
     assert lessons(0.0, 3) == pytest.approx([0.1, 0.1, 0.1])  # off: every lesson the full rate
     assert lessons(1.0, 3) == pytest.approx([0.1, 0.1 / 2.0, 0.1 / 3.0])
@@ -711,16 +717,7 @@ def test_with_settle_recovers_lessons_that_agree_restore_the_rate_and_a_reversal
     the other way adds to it as rule 15 does; a neighbour's credit (a trace below
     ``settle_own_trace``) never counts as its own; off by default."""
     def lessons(recovers: bool, kinds: list[str], row: int = 3) -> list[float]:
-        p = _tucking(settle_lifting=1.0, settle_recovers=recovers, spread_cells=0.0, context_share=0.0,
-                     commit_earlier_s=0.0, learning_rate_s=0.1, flip_at=2.0)
-        changes = []
-        for k, kind in enumerate(kinds):
-            t = 100.0 * k  # each trace long gone before the next gate
-            before = float(p.weights[row, 15])
-            p.on_step_onset(t, 15, context=row)
-            p.on_reflex(kind, t)  # its own trace 1 at once
-            changes.append(float(p.weights[row, 15]) - before)
-        return changes
+        return _own_lessons(kinds, row, settle_lifting=1.0, settle_recovers=recovers)
 
     e, pl = "extension", "placement"
     assert lessons(False, [e, pl, pl, pl]) == pytest.approx([0.1, -0.1 / 2, -0.1 / 3, -0.1 / 4])
