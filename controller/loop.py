@@ -28,7 +28,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Final
 
 import can
@@ -114,7 +114,6 @@ class ControlLoop:
         self.io = BusIO(bus, contract, self.axes, self.sensors)
         self.supervisor = Supervisor(self.axes, self.sensors, config.heartbeat_timeout_s, config.bringup_timeout_s,
                                      config.stale_heartbeat_s, health=config.health)
-        self.cpg = RingOscillator(config.cpg)
         self.encoder = RangeEncoder(config.encoder)
         self.range_filter = RangeFilter(config.range_filter)
         self.height = HeightEstimator(config.height)
@@ -123,6 +122,11 @@ class ControlLoop:
         self.premotor: Premotor = premotor or AdaptivePremotor(
             self.encoder.n_cells, config.cpg.burst_s, config.learner
         )
+        # a premotor that asks for a longer swing than the CPG's configured bound (the improved
+        # learner's crossing, controller.stepping.improved rule 24) says how long, and the CPG clips
+        # to that instead; the controller's own premotor has none, so the deployed bound holds
+        longest: float | None = getattr(self.premotor, "longest_burst_s", None)
+        self.cpg = RingOscillator(config.cpg if longest is None else replace(config.cpg, burst_max_s=longest))
         # a premotor that also learns the lift (controller.stepping.premotor.LiftingPremotor) sets the
         # amplitude and hears each reflex in full; any other gets the hardwired lift reflex
         self._premotor_lift: Callable[[float | None, int | None], float] | None = getattr(

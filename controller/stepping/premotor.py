@@ -2,6 +2,12 @@
 
 The learner of the Elegant Stepping model (:class:`controller.stepping.learner.AdaptivePremotor`)
 implements it; so can any other stride policy (a baseline, a planner) that the loop should drive.
+
+The loop also looks, once when it is built, for optional attributes: the lift's two methods
+(:class:`LiftingPremotor`), and ``longest_burst_s``, a float [s] with which a premotor asks the
+CPG to clip its bursts there instead of at the configured ``cpg.burst_max_s`` (the improved
+learner's longer crossing, :mod:`controller.stepping.improved` rule 24). The controller's own
+premotor has none of them, so the deployed leg keeps its configured bound.
 """
 
 from __future__ import annotations

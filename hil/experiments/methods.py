@@ -71,10 +71,10 @@ def lift_max(controller: ControllerConfig) -> float:
 
 def build_improved(controller: ControllerConfig, learning: bool = True, **settings):
     """The improved learner for this controller: its lift settings from the controller's reflexes,
-    its highest lift from the leg (:func:`lift_max`), the gait's tuck and the CPG's longest burst
-    for a tucked swing, the ground speed the gait believes; ``settings``: other
-    :class:`controller.stepping.improved.ImprovedConfig` settings (tuning). A ValueError names a
-    setting the controller's gait cannot follow."""
+    its highest lift from the leg (:func:`lift_max`), the gait's tuck and its longest burst
+    (``longest_burst_s``, rule 24; 0: the CPG's) for a tucked swing, the ground speed the gait
+    believes; ``settings``: other :class:`controller.stepping.improved.ImprovedConfig` settings
+    (tuning). A ValueError names a setting the controller's gait cannot follow."""
     from functools import partial
 
     from controller.motion.gait import tuck_fraction
@@ -89,6 +89,12 @@ def build_improved(controller: ControllerConfig, learning: bool = True, **settin
     if descend > 0.0 and not rise < descend:
         raise ValueError(f"improved.lifting_descend_phase must be 0 (the gait's descent) or after "
                          f"gait.tuck_rise_phase = {rise}, got {descend!r}")
+    if config.longest_burst_s > 0.0:  # rule 24: the learner's own longest swing; the CPG clips to it (loop)
+        if config.longest_burst_s < controller.cpg.burst_s:
+            raise ValueError(f"improved.longest_burst_s must be 0 (the CPG's own bound) or at least cpg.burst_s = "
+                             f"{controller.cpg.burst_s} s, got {config.longest_burst_s!r}")
+        # (lift_max is the highest the foot can be held at all, whatever the swing's length)
+        controller = replace(controller, cpg=replace(controller.cpg, burst_max_s=config.longest_burst_s))
     cpg = controller.cpg
     return ImprovedPremotor(controller.height.n_contexts, controller.encoder.n_cells, cpg.burst_s, config,
                             tuck=partial(tuck_fraction, controller.gait), tucked_extra_s=cpg.burst_max_s - cpg.burst_s,

@@ -430,3 +430,39 @@ def test_a_shin_brush_between_two_ticks_fires_a_reflex():
     assert [r.cause for r in leg.loop.stats.reflexes] == ["shin"]
     leg.tick(5)
     assert len(leg.loop.stats.reflexes) == 1  # heard once
+
+
+class _LongSwing:
+    """A premotor that asks for a fixed burst and, unless None, its own longest burst."""
+
+    def __init__(self, burst_s: float, longest_burst_s: float | None) -> None:
+        self._burst_s = burst_s
+        if longest_burst_s is not None:
+            self.longest_burst_s = longest_burst_s
+
+    def on_step_onset(self, now_s: float, cell: int | None, context: int | None = None) -> None:
+        pass
+
+    def burst_s(self, now_s: float) -> float:
+        return self._burst_s
+
+    def on_reflex(self, kind: str, now_s: float) -> None:
+        pass
+
+    def gated_weight(self) -> float:
+        return 0.0
+
+
+def test_a_premotor_that_declares_its_longest_burst_sets_the_cpgs_bound_and_no_other_does():
+    config = ControllerConfig()
+    assert config.cpg.burst_max_s == 0.6
+    own = ControlLoop(config, FakeBus())  # the controller's own premotor: the configured bound
+    assert own.cpg.set_burst_s(0.9) == 0.6
+    plain = ControlLoop(config, FakeBus(), premotor=_LongSwing(0.9, None))
+    assert plain.cpg.set_burst_s(plain.premotor.burst_s(0.0)) == 0.6
+    longer = ControlLoop(config, FakeBus(), premotor=_LongSwing(0.9, 0.7))
+    assert longer.cpg.set_burst_s(longer.premotor.burst_s(0.0)) == 0.7
+    assert longer.cpg.set_burst_s(0.65) == 0.65 and longer.cpg.set_burst_s(0.05) == config.cpg.burst_min_s
+    assert longer.config.cpg.burst_max_s == 0.6  # the configuration itself is not changed
+    with pytest.raises(ValueError, match="burst_max_s"):  # shorter than the base burst: refused
+        ControlLoop(config, FakeBus(), premotor=_LongSwing(0.3, 0.2))

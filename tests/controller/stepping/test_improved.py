@@ -388,9 +388,9 @@ def test_the_low_contexts_start_tucked_and_share_credit_only_with_their_kind():
     credit is shared (context_share), and committed (rule 8), only between rows of one kind."""
     p = tuck_premotor(tucked_contexts=2, lift_amplitude=1.9, context_share=0.5)
     assert list(p.lifts) == [3.44, 3.44, 1.9, 1.9]
-    assert list(p.lift_ranges) == pytest.approx([0.28, 0.28, 0.4, 0.4])
+    assert list(p.lift_ranges) == pytest.approx([0.30, 0.30, 0.4, 0.4])
     p.on_step_onset(0.0, 7, context=1)
-    assert p.lift_amplitude(0.29, 1) == 1.0 and p.lift_amplitude(0.27, 1) == pytest.approx(3.44)
+    assert p.lift_amplitude(0.31, 1) == 1.0 and p.lift_amplitude(0.29, 1) == pytest.approx(3.44)
     traces = p.traces.at(0.0).reshape(4, 28)
     assert traces[1, 7] == 1.0 and traces[0, 7] > 0.0 and traces[2, 7] == 0.0 and traces[3, 7] == 0.0
     p.on_step_onset(100.0, 7, context=3)  # the first gate's traces have decayed away
@@ -415,13 +415,13 @@ def test_commit_is_for_the_tucked_kind_when_some_contexts_start_tucked():
 
 
 def test_a_tucked_context_lifts_within_a_time_to_contact_at_the_believed_speed():
-    """tucked_time_s is a time: at 0.6 m/s the tucked contexts lift from 0.336 m, at 0.5 from 0.28."""
+    """tucked_time_s is a time: at 0.6 m/s the tucked contexts lift from 0.36 m, at 0.5 from 0.30."""
     def ranges(speed: float) -> list[float]:
         p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44), ground_speed_m_s=speed)
         return p.lift_ranges.tolist()
 
-    assert ranges(0.5) == [0.28, 0.28, 0.4, 0.4]  # exactly: the default records are round 8's first ones
-    assert ranges(0.6) == pytest.approx([0.336, 0.336, 0.4, 0.4])
+    assert ranges(0.5) == [0.30, 0.30, 0.4, 0.4]  # exactly: 0.60 s (rule 24, round 25) at 0.5 m/s
+    assert ranges(0.6) == pytest.approx([0.36, 0.36, 0.4, 0.4])
     with pytest.raises(ValueError, match="ground_speed_m_s"):
         ImprovedPremotor(4, 28, BASE, ground_speed_m_s=0.0)
 
@@ -440,7 +440,7 @@ def test_the_ground_speed_is_the_belief_fused_with_each_measured_closing_speed()
     def lifts(range_m: float, context: int) -> bool:
         return p.lift_amplitude(range_m, context) > 1.0
 
-    assert lifts(0.30, 0) and not lifts(0.31, 0)  # 0.56 s at 0.55 m/s: 0.308 m
+    assert lifts(0.35, 0) and not lifts(0.36, 0)  # 0.60 s at 0.55 m/s: 0.33 m, + 0.5 s x 0.05 m/s (rule 24)
     assert lifts(0.39, 3) and not lifts(0.41, 3)  # a context that learns its lift: 0.40 m, as set
     for bad in ((math.nan, 1e-4), (0.5, 0.0), (0.5, math.inf), (math.inf, 1e-4)):
         p.observe_closing_speed(*bad)  # ignored
@@ -451,7 +451,7 @@ def test_with_no_doubt_of_the_belief_no_measurement_moves_it():
     p = ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44, speed_belief_sd_m_s=0.0))
     p.observe_closing_speed(0.6, 1e-6)
     assert p.ground_speed_m_s == 0.5
-    assert p.lift_amplitude(0.279, 0) > 1.0 and p.lift_amplitude(0.281, 0) == 1.0
+    assert p.lift_amplitude(0.299, 0) > 1.0 and p.lift_amplitude(0.301, 0) == 1.0
 
 
 def test_a_context_that_learns_its_lift_lifts_nearer_as_its_swing_tucks():
@@ -635,6 +635,10 @@ def test_blended_steps_counts_the_step_cycles_whose_burst_the_blend_changed_once
     assert p.blended_steps == 2
 
 
+ROUND24_TIMES = (0.56, 0.56, 0.48, 0.40)
+"""``tucked_time_s`` before round 25 (0.28 m at 0.5 m/s): the edge the tests of rounds 20-21 place their gates by."""
+
+
 def _tucking(**config) -> ImprovedPremotor:
     """Contexts 0-1 start tucked, 2-3 learn their lift; the gait tucks above a lift of 3.0."""
     return ImprovedPremotor(4, 28, BASE, ImprovedConfig(tucked_contexts=2, lift_max=3.44, **config),
@@ -647,7 +651,7 @@ def test_with_tucked_keeps_burst_a_tucked_swing_in_a_context_that_learns_its_lif
     the shortening cannot help the take-off, which the step before sets. Only a tucked swing,
     only in the contexts that learn their lift, only a negative weight; on by default."""
     def burst(keep: bool, row: int = 3, lift: float = 3.44, w: float = -0.3, range_m: float = 0.1) -> float:
-        p = _tucking(tucked_keeps_burst=keep, blend_readout=False)
+        p = _tucking(tucked_keeps_burst=keep, keeps_burst_tucked_rows=False, blend_readout=False)
         p.lifts[row] = lift
         p.weights[row, 2] = w
         p.on_step_onset(0.0, 2, context=row)
@@ -661,7 +665,7 @@ def test_with_tucked_keeps_burst_a_tucked_swing_in_a_context_that_learns_its_lif
     assert burst(True, lift=3.22) == pytest.approx(BASE + 0.15)  # half tucked: at least its own burst
     assert burst(True, lift=2.8) == pytest.approx(BASE - 0.3)  # not tucked: as before
     assert burst(True, range_m=0.5) == pytest.approx(BASE - 0.3)  # beyond the lift range: a plain step
-    assert burst(True, row=1) == burst(False, row=1)  # a context that starts tucked: as before
+    assert burst(True, row=1) == burst(False, row=1)  # a context that starts tucked: as before (rule 24 off)
     assert ImprovedConfig().tucked_keeps_burst  # a default since round 15
 
 
@@ -681,6 +685,27 @@ def test_with_keeps_burst_tucked_rows_a_context_that_starts_tucked_keeps_its_cro
     assert burst(True, keep=False) == pytest.approx(full - 0.3)  # only with rule 14
     assert burst(True, w=0.1) == pytest.approx(full + 0.1)
     assert burst(True, range_m=0.5) == pytest.approx(BASE - 0.3)  # beyond its range: a plain step
+    assert ImprovedConfig().keeps_burst_tucked_rows  # a default since round 25 (rule 24)
+
+
+def test_with_longest_burst_s_the_learner_asks_the_cpg_for_a_longer_swing():
+    """Rule 24 (round 25): ``longest_burst_s`` (0.7 s; 0: the CPG's own bound) is the longest burst
+    the learner asks the loop to let the CPG give (a longer tucked crossing reaches farther); the
+    two lowest contexts lift within 0.60 s of contact to match, their crossing keeps its full
+    burst, and on a plant slower than believed their edge comes nearer by 0.5 s x the difference.
+    Shorter than the base burst it is refused."""
+    config = ImprovedConfig()
+    assert config.longest_burst_s == 0.7 and config.tucked_time_s[:2] == (0.60, 0.60)
+    assert config.keeps_burst_tucked_rows and config.tucked_mismatch_s == 0.5
+    assert ImprovedPremotor(4, 28, BASE).longest_burst_s == 0.7
+    assert ImprovedPremotor(4, 28, BASE, ImprovedConfig(longest_burst_s=0.0)).longest_burst_s is None
+    p = _tucking(blend_readout=False)  # rule 14 in rows 0-1 too, by default
+    p.weights[1, 6] = -0.3
+    p.on_step_onset(0.0, 6, context=1)
+    assert p.lift_amplitude(0.29, 1) == pytest.approx(3.44)  # within 0.30 m: the tucked crossing
+    assert p.burst_s(0.0) == pytest.approx(BASE + 0.3)  # its full burst (tucked_extra_s 0.3 here)
+    with pytest.raises(ValueError, match="longest_burst_s"):
+        ImprovedPremotor(4, 28, BASE, ImprovedConfig(longest_burst_s=0.25))
 
 
 def _own_lessons(kinds: list[str], row: int, **config) -> list[float]:
@@ -922,7 +947,7 @@ def test_with_edge_on_cell_a_context_that_starts_tucked_lifts_below_the_nearest_
     at 0.45 m/s), where one weight would drive both a plain step and a crossing; with the setting
     it moves to the nearest boundary. At the believed speed (0.28 m, a boundary) nothing changes."""
     def limit(on: bool, speed_m_s: float, row: int = 0) -> float:
-        p = _tucking(edge_on_cell=on)
+        p = _tucking(edge_on_cell=on, tucked_time_s=ROUND24_TIMES, tucked_mismatch_s=0.0)
         p.ground_speed_m_s = speed_m_s  # as rule 10's fused closing speeds would set it
         return p._lift_limit_m(row)
 
@@ -962,7 +987,7 @@ def test_with_tucked_mismatch_s_a_tucked_context_lifts_nearer_on_a_plant_slower_
     by ``tucked_mismatch_s`` x (believed - sensed), once the sensed speed is to be believed (the
     wait and the deadband of ``stance_follows_speed``); within them, or off, it is as before."""
     def limit(mismatch_s: float, speed_m_s: float, samples: int = 20, row: int = 0) -> float:
-        p = _tucking(tucked_mismatch_s=mismatch_s)
+        p = _tucking(tucked_mismatch_s=mismatch_s, tucked_time_s=ROUND24_TIMES)
         p.ground_speed_m_s, p.speed_samples = speed_m_s, samples  # as rule 10's fused closing speeds would
         return p._lift_limit_m(row)
 
@@ -972,7 +997,7 @@ def test_with_tucked_mismatch_s_a_tucked_context_lifts_nearer_on_a_plant_slower_
     assert limit(0.6, 0.45, samples=19) == limit(0.0, 0.45)  # before the wait
     assert limit(0.6, 0.49) == limit(0.0, 0.49)  # within the deadband (0.02 m/s)
     assert limit(0.6, 0.45, row=3) == limit(0.0, 0.45, row=3)  # a context that learns its lift
-    assert ImprovedConfig().tucked_mismatch_s == 0.0
+    assert ImprovedConfig().tucked_mismatch_s == 0.5  # a default since round 25 (rule 24)
 
 
 def test_with_near_edge_s_a_crossing_near_its_edge_moves_the_plain_step_before_away_from_the_gap():
@@ -1011,7 +1036,7 @@ def test_with_near_edge_plain_a_plain_step_just_beyond_the_edge_learns_shorter_a
     step's burst is already shorter. Not farther out, not a crossing, not in a context that learns
     its lift; off by default, and nothing without ``near_edge_s``."""
     def plain(on: bool, range_m: float = 0.30, row: int = 1, near_s: float = 0.05, w: float = 0.1) -> float:
-        p = _tucking(near_edge_s=near_s, near_edge_plain=on, near_edge_m=0.04)
+        p = _tucking(near_edge_s=near_s, near_edge_plain=on, near_edge_m=0.04, tucked_time_s=ROUND24_TIMES)
         cell = int(range_m / 0.04)
         p.weights[row, cell] = w
         p.on_step_onset(0.0, cell, context=row)

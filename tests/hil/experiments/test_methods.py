@@ -90,3 +90,24 @@ def test_the_improved_learner_hears_the_ground_speed_its_range_filter_measures()
         run.close()
     assert len(heard) >= 3 and all(abs(v - 0.55) < 0.05 for v in heard)
     assert premotor.ground_speed_m_s == pytest.approx(0.55, abs=0.005)
+
+
+def test_the_improved_learner_asks_for_its_own_longest_burst_and_its_tucked_burst_matches_it():
+    """Rule 24's ``longest_burst_s``: 0.7 s by default, whatever the CPG's configured bound, and the
+    tucked swing's extra burst follows it; 0 leaves the CPG's bound (as before round 25)."""
+    from dataclasses import replace
+
+    from controller.config import ControllerConfig
+
+    controller = ControllerConfig()
+    default = methods.build_improved(controller)
+    assert default.longest_burst_s == 0.7 and controller.cpg.burst_max_s == 0.6
+    assert default._tucked_extra_s == pytest.approx(0.7 - controller.cpg.burst_s)
+    own = methods.build_improved(controller, longest_burst_s=0.0)
+    assert own.longest_burst_s is None
+    assert own._tucked_extra_s == pytest.approx(controller.cpg.burst_max_s - controller.cpg.burst_s)
+    other = replace(controller, cpg=replace(controller.cpg, burst_max_s=0.8))
+    assert methods.build_improved(other, longest_burst_s=0.0)._tucked_extra_s == pytest.approx(0.5)
+    assert methods.build_improved(other)._tucked_extra_s == pytest.approx(0.4)
+    with pytest.raises(ValueError, match="longest_burst_s must be 0"):
+        methods.build_improved(controller, longest_burst_s=0.2)
