@@ -559,6 +559,9 @@ class ImprovedPremotor:
             raise ValueError(f"n_contexts and n_cells must be positive integers, got {n_contexts!r}, {n_cells!r}")
         if not (math.isfinite(ground_speed_m_s) and ground_speed_m_s > 0.0):
             raise ValueError(f"ground_speed_m_s must be a finite speed > 0 m/s, got {ground_speed_m_s!r}")
+        if 0.0 < config.longest_burst_s < base_burst_s:
+            raise ValueError(f"improved.longest_burst_s must be 0 (the CPG's own bound) or at least the base burst "
+                             f"{base_burst_s} s, got {config.longest_burst_s!r}")
         if not (math.isfinite(tucked_extra_s) and tucked_extra_s >= 0.0):
             raise ValueError(f"tucked_extra_s must be a finite burst length >= 0 s, got {tucked_extra_s!r}")
         if ((config.spread_at_lift_edge or config.too_close_at_lift_edge or config.blend_readout
@@ -572,9 +575,6 @@ class ImprovedPremotor:
         self._cell_width_m = cell_width_m
         self._tuck = tuck
         self._tucked_extra_s = tucked_extra_s
-        if 0.0 < config.longest_burst_s < base_burst_s:
-            raise ValueError(f"improved.longest_burst_s must be 0 (the CPG's own bound) or at least the base burst "
-                             f"{base_burst_s} s, got {config.longest_burst_s!r}")
         self.longest_burst_s: float | None = config.longest_burst_s if config.longest_burst_s > 0.0 else None
         """The longest burst [s] this learner asks the CPG to allow instead of its configured bound (the
         loop reads it once, when it is built); None: the CPG's own."""

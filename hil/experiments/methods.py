@@ -89,15 +89,12 @@ def build_improved(controller: ControllerConfig, learning: bool = True, **settin
     if descend > 0.0 and not rise < descend:
         raise ValueError(f"improved.lifting_descend_phase must be 0 (the gait's descent) or after "
                          f"gait.tuck_rise_phase = {rise}, got {descend!r}")
-    if config.longest_burst_s > 0.0:  # rule 24: the learner's own longest swing; the CPG clips to it (loop)
-        if config.longest_burst_s < controller.cpg.burst_s:
-            raise ValueError(f"improved.longest_burst_s must be 0 (the CPG's own bound) or at least cpg.burst_s = "
-                             f"{controller.cpg.burst_s} s, got {config.longest_burst_s!r}")
-        # (lift_max is the highest the foot can be held at all, whatever the swing's length)
-        controller = replace(controller, cpg=replace(controller.cpg, burst_max_s=config.longest_burst_s))
     cpg = controller.cpg
+    # rule 24: the tucked swing takes the learner's own longest burst (the loop lets the CPG give it;
+    # the premotor refuses one shorter than the base burst), or the CPG's
+    longest_s = config.longest_burst_s if config.longest_burst_s > 0.0 else cpg.burst_max_s
     return ImprovedPremotor(controller.height.n_contexts, controller.encoder.n_cells, cpg.burst_s, config,
-                            tuck=partial(tuck_fraction, controller.gait), tucked_extra_s=cpg.burst_max_s - cpg.burst_s,
+                            tuck=partial(tuck_fraction, controller.gait), tucked_extra_s=longest_s - cpg.burst_s,
                             ground_speed_m_s=controller.gait.ground_speed_m_s,
                             cell_width_m=controller.encoder.cell_width_m)
 
