@@ -3,7 +3,8 @@
 Each plotting function takes the numbers it draws and returns them too, so tests check the data
 behind every axis rather than pixels. The paper's figures: Fig. 2 :func:`foot_trajectories`,
 Fig. 3 :func:`footfall_spread` / :func:`footfall_spread_by_size`, Fig. 4 :func:`weights_by_distance`
-with :func:`weights_autocorrelation`; besides them the learning curves over seeds
+with :func:`weights_autocorrelation` (and :func:`weights_by_context` for a learner with a row per
+obstacle height); besides them the learning curves over seeds
 (:func:`success_curves`) and the burst length over one approach (:func:`burst_over_approach`).
 :func:`paper_figures` draws all the data allows from ``learn`` output folders.
 
@@ -28,7 +29,7 @@ from matplotlib.patches import Rectangle
 
 from hil.analysis.metrics import autocorrelation_peak, footfall_std_by_step, late_window, load_run
 from hil.analysis.stats import mean_ci95, running_success
-from hil.experiments.methods import DEFAULT_METHOD, resolve
+from hil.experiments.methods import CONTROLLER_METHOD, DEFAULT_METHOD, resolve
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +75,36 @@ def weights_by_distance(weights: np.ndarray, cell_width_m: float, out: Path,
            title="Learned weights (ordered by distance for display only)")
     _save(fig, out, name)
     return {"distance_m": distance, "weight_s": [float(w) for w in weights]}
+
+
+def weights_by_context(weights: np.ndarray, cell_width_m: float, beam_heights_m: Sequence[float], out: Path,
+                       name: str = "weights") -> dict[str, Any]:
+    """A context learner's weights (``improved``, ``context``): one panel per height context, its
+    weight of each range cell against the cell's distance, as :func:`weights_by_distance` draws
+    one row. ``beam_heights_m``: the profile beams that bound the contexts (the controller's
+    ``height.beam_heights_m``); a row has a context per gap between them and one at each end."""
+    weights = np.atleast_2d(np.asarray(weights, dtype=float))
+    edges = [0.0, *beam_heights_m, float("inf")]
+    if len(edges) - 1 != weights.shape[0]:
+        raise ValueError(f"{weights.shape[0]} rows of weights but {len(edges) - 1} height contexts "
+                         f"from beams {list(beam_heights_m)}")
+    distance = ((np.arange(weights.shape[1]) + 0.5) * cell_width_m).tolist()
+    labels = [f"obstacle below {edges[1]:g} m" if k == 0 else f"obstacle above {edges[k]:g} m"
+              if k == weights.shape[0] - 1 else f"obstacle {edges[k]:g}-{edges[k + 1]:g} m"
+              for k in range(weights.shape[0])]
+    fig, axes = subplots(weights.shape[0], 1, figsize=(6, 1.6 * weights.shape[0] + 0.6), sharex=True,
+                         sharey=True, squeeze=False)
+    limit = max(float(np.abs(weights).max()), 1e-3)
+    for ax, row, label in zip(axes[:, 0], weights, labels):
+        ax.bar(distance, row, width=cell_width_m * 0.9, color=np.where(row >= 0, "C1", "C0"))
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.set_ylim(-1.1 * limit, 1.1 * limit)
+        ax.set_title(label, fontsize="small", loc="left")
+    axes[-1, 0].set_xlabel("range cell (distance from the sensor) [m]")
+    axes[len(axes) // 2, 0].set_ylabel("weight [s of burst]")
+    fig.suptitle("Learned weights per height context")
+    _save(fig, out, name)
+    return {"distance_m": distance, "context": labels, "weight_s": weights.tolist()}
 
 
 def footfall_spread(std_by_step: list[float | None], out: Path, name: str = "footfall_spread") -> dict[str, list]:
@@ -311,12 +342,23 @@ def run_label(config: dict[str, Any]) -> str:
     method's registry name (an old run's ``learner`` is the paper's)."""
     if not config.get("learning", True):
         return "no learning"
-    name = config.get("method", DEFAULT_METHOD)
+    name = config.get("method", CONTROLLER_METHOD)
     try:
         name = resolve(name).name
     except ValueError:  # a method no longer registered: its own name
         return str(name)
-    return "learning" if name == DEFAULT_METHOD else name
+    return "learning" if name == CONTROLLER_METHOD else name
+
+
+def _weights_at(run: dict[str, Any], height_m: float) -> np.ndarray:
+    """A run's weights for an obstacle of ``height_m``: all of them for the paper's learner, the
+    row of the height context it falls in for a learner with a row per context (``improved``,
+    ``context``; the contexts bounded by the run's ``height.beam_heights_m``)."""
+    weights = np.asarray(run["weights"], dtype=float)
+    if weights.ndim == 1:
+        return weights
+    beams = run["config"]["controller"]["height"]["beam_heights_m"]
+    return weights[min(sum(1 for b in beams if b <= height_m), weights.shape[0] - 1)]
 
 
 def _height_of(config: dict[str, Any]) -> float | None:
@@ -346,6 +388,10 @@ def paper_figures(folders: Sequence[str | Path], out: str | Path) -> dict[str, l
       of one learning run (the first whose traced first trial failed and last succeeded, else the
       first with two traced trials).
 
+    Figs. 2-4 ("learning runs") are drawn from one method's runs: the paper's learner's where the
+    folders hold some (the paper's figures of the paper's model), else ``learn``'s default's
+    (``improved``; its weights at a height are the row of that height's context).
+
     Returns each written figure's name and its files.
     """
     if not folders:
@@ -366,7 +412,11 @@ def paper_figures(folders: Sequence[str | Path], out: str | Path) -> dict[str, l
     success_curves(curves, out)
     wrote("learning_curve_seeds")
 
-    learning = [r for r in runs if run_label(r["config"]) == "learning"]
+    learning: list[dict[str, Any]] = []
+    for label in ("learning", DEFAULT_METHOD):  # the paper's learner's runs, else learn's default's
+        learning = [r for r in runs if run_label(r["config"]) == label]
+        if learning:
+            break
     by_height: dict[float, list[dict[str, Any]]] = {}
     for r in learning:
         h = _height_of(r["config"])
@@ -385,8 +435,9 @@ def paper_figures(folders: Sequence[str | Path], out: str | Path) -> dict[str, l
             continue
         r = with_weights[0]
         tag = f"h{h * 100:g}cm"
-        weights_by_distance(r["weights"], r["cell_width_m"], out, name=f"weights_{tag}")
-        weights_autocorrelation(r["weights"], r["cell_width_m"], out, name=f"weights_autocorrelation_{tag}")
+        weights = _weights_at(r, h)
+        weights_by_distance(weights, r["cell_width_m"], out, name=f"weights_{tag}")
+        weights_autocorrelation(weights, r["cell_width_m"], out, name=f"weights_autocorrelation_{tag}")
         wrote(f"weights_{tag}")
         wrote(f"weights_autocorrelation_{tag}")
 

@@ -36,8 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from hil.experiments.methods import DEFAULT_METHOD, METHODS
 
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                   help=f"what drives the stride: a name of the method registry (default {DEFAULT_METHOD}: "
-                        "the paper's learner)")
+                   help=f"what drives the stride: a name of the method registry (default {DEFAULT_METHOD}, "
+                        "the learner that won on held-out seeds; paper: the paper's learner, the one the "
+                        "daemon deploys)")
     p.add_argument("--trials", type=positive(int), default=150, help="number of approaches (default 150)")
     p.add_argument("--seed", type=non_negative(int), default=0,
                    help="seed of start distances and sensor noise (default 0)")
@@ -54,7 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                                     "most the leg's limit "
                                                     "(0.223 m for the default block; docs/leg_limits.md) "
                                                     "(default 0.08)"})
-    p.add_argument("--no-learning", action="store_true", help="freeze the weights at zero (the baseline)")
+    p.add_argument("--no-learning", action="store_true",
+                   help="freeze the method's weights at zero (the paper's learner frozen is the no-adaptation "
+                        "baseline, --method none)")
     p.add_argument("--no-figures", action="store_true", help="skip DIR/figures/")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     from hil.experiments.gui import add_arguments as add_gui

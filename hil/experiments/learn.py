@@ -45,7 +45,7 @@ from hil.experiments.conditions import Conditions, check_leg_limit
 from hil.experiments.journal import (LOCK_FILE, TRIALS_FILE, FolderLock, Journal, JournalWriter, prepare_folder,
                                      read_journal)
 from hil.lockstep.groundtruth import FootfallTracker
-from hil.experiments.methods import DEFAULT_METHOD, get as get_method
+from hil.experiments.methods import CONTROLLER_METHOD, get as get_method
 from hil.lockstep.harness import Lockstep, LockstepConfig
 
 log = logging.getLogger(__name__)
@@ -77,8 +77,10 @@ class LearnConfig:
         past_obstacle_m: a trial ends when the hip is this far past the far edge [m]; 0.45.
         learning: False freezes the weights at zero (the no-adaptation baseline); default True.
         method: which premotor drives the burst length: a name of the method registry
-            (:data:`hil.experiments.methods.METHODS`); default "paper" (the Elegant Stepping model).
-            A method that does not learn (``none``) sets ``learning`` False.
+            (:data:`hil.experiments.methods.METHODS`); default "paper" (the Elegant Stepping model,
+            the controller's own: :data:`~hil.experiments.methods.CONTROLLER_METHOD`; the
+            ``learn`` command's default is ``improved``). A method that does not learn
+            (``none``) sets ``learning`` False.
         trace_trials: 0-based indices of trials whose foot path and burst length are recorded
             at ``trace_rate_hz`` into the trial's ``trace`` (Fig. 2, burst against time);
             negative indices count from the end; default none.
@@ -107,7 +109,7 @@ class LearnConfig:
     start_max_m: float = 2.9
     past_obstacle_m: float = 0.45
     learning: bool = True
-    method: str = DEFAULT_METHOD
+    method: str = CONTROLLER_METHOD
     trace_trials: tuple[int, ...] = ()
     trace_rate_hz: float = 100.0
     controller: ControllerConfig = field(default_factory=ControllerConfig)
@@ -687,13 +689,18 @@ def learn_into(config: LearnConfig, out_dir: str | Path, *, progress: bool = Fal
 
 
 def write_figures(out: Path, metrics: dict[str, Any], premotor) -> None:
+    from controller.stepping.improved import ImprovedPremotor
     from hil.analysis import figures
 
     fig_dir = out / "figures"
     trials = metrics["trials"]
     figures.learning_curve(trials, fig_dir)
+    controller = metrics["config"]["controller"]
     if isinstance(premotor, AdaptivePremotor):
-        figures.weights_by_distance(premotor.weights, metrics["config"]["controller"]["encoder"]["cell_width_m"], fig_dir)
+        figures.weights_by_distance(premotor.weights, controller["encoder"]["cell_width_m"], fig_dir)
+    elif isinstance(premotor, (ContextPremotor, ImprovedPremotor)):  # a row of weights per height context
+        figures.weights_by_context(premotor.weights, controller["encoder"]["cell_width_m"],
+                                   controller["height"]["beam_heights_m"], fig_dir)
     late = last_window(len(trials))
     figures.footfall_spread(footfall_std_by_step([metrics], *late), fig_dir)
 

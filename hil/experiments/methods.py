@@ -13,6 +13,10 @@ module that sets the CPG's burst length:
 - ``improved``: the paper's learner with height context, credit over neighbouring cells, a
   falling learning rate and the lift learned per context (see :mod:`controller.stepping.improved`).
 
+``learn`` runs :data:`DEFAULT_METHOD` (``improved``) unless told; a :class:`LearnConfig` that
+names no method, and so the HIL sessions, benchmarks and fault matrix, runs
+:data:`CONTROLLER_METHOD` (``paper``), the learner the daemon deploys.
+
 To add a method, add one :class:`Method` to :data:`REGISTRY`; ``learn --method``, ``sweep
 --methods``, the sweep's report and the figures' legends all read it from here.
 
@@ -136,8 +140,16 @@ REGISTRY: dict[str, Method] = {m.name: m for m in (
     Method("improved", "The improved learner", True, _improved),
 )}
 METHODS: tuple[str, ...] = tuple(REGISTRY)  # the names, e.g. for argparse ``choices``
-DEFAULT_METHOD = "paper"
-DEFAULT_SWEEP_METHODS: tuple[str, ...] = ("paper", "none", "oracle", "rl")
+DEFAULT_METHOD = "improved"
+"""What ``learn`` runs unless ``--method`` names another: the improved learner. It is the default
+because it won issue 18's comparison with the paper's learner on the held-out seeds 1000-1019
+(docs/improved.md, "Held-out"); ``--method paper`` runs the reproduction."""
+CONTROLLER_METHOD = "paper"
+"""The controller's own learner, the one the daemon deploys (its weights file is the daemon's):
+:class:`~hil.experiments.learn.LearnConfig`'s default, so that whatever runs a learning loop
+without naming a method (HIL sessions, benchmarks, the fault matrix) runs the deployed product;
+and the method of a run folder that names none (made before methods were registered)."""
+DEFAULT_SWEEP_METHODS: tuple[str, ...] = ("improved", "paper", "none", "oracle", "rl")
 
 # Older sweep folders and learn output folders name the paper's learner "learner" (in
 # config.json, summary.json, the cells' folder names and metrics.json). Only reading them

@@ -7,7 +7,8 @@ time is the plant's (``use_sim_time`` in ROS words; CANopen's SYNC in spirit): t
 :mod:`controller.daemon.simclock`) ticks once per sync with its time and answers
 ``ES_End_Of_Period``, and the plant steps on when that answer has arrived. A stalled process only
 slows the session; it never changes what happens in it, so the same seed gives, trial for trial,
-the records of ``elegant-stepping learn`` (wall-clock figures aside), however loaded the host is.
+the records of ``elegant-stepping learn --method paper`` (the deployed learner; wall-clock figures
+aside), however loaded the host is.
 
 The order: the recorder; ``firmware-sim --clock sim`` (:mod:`hil.session.simplant`), asked on the
 side channel for the learning run (trials, seed, height, noise, learning; the trial schedule runs

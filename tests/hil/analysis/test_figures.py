@@ -35,6 +35,16 @@ def test_weights_figure_orders_cells_by_distance(tmp_path):
     assert (tmp_path / "weights.png").stat().st_size > 1000
 
 
+def test_a_context_learners_weights_are_drawn_one_panel_per_height_context(tmp_path):
+    weights = np.array([[0.0, 0.1], [-0.3, 0.0], [0.0, 0.0]])
+    data = figures.weights_by_context(weights, 0.04, (0.05, 0.09), tmp_path)
+    assert data["context"] == ["obstacle below 0.05 m", "obstacle 0.05-0.09 m", "obstacle above 0.09 m"]
+    assert data["distance_m"] == pytest.approx([0.02, 0.06]) and data["weight_s"] == weights.tolist()
+    assert (tmp_path / "weights.png").stat().st_size > 1000
+    with pytest.raises(ValueError, match="3 rows of weights but 4 height contexts"):
+        figures.weights_by_context(weights, 0.04, (0.05, 0.09, 0.13), tmp_path)
+
+
 def test_footfall_spread_is_the_std_k_steps_before_the_obstacle(tmp_path):
     runs = [{"trials": [{"footfalls_m": [-1.2, -0.8, -0.5, -0.15]}, {"footfalls_m": [-1.0, -0.7, -0.45, -0.15]}]}]
     std = footfall_std_by_step(runs, 1, 2)
@@ -267,13 +277,16 @@ def test_figures_compare_draws_one_curve_per_folder_labelled_by_its_name(tmp_pat
     assert main(["figures", str(hil), "--out", str(out), "--compare", "a/b"]) == 3
 
 
-def test_learn_records_the_first_and_last_trial_for_the_figures(tmp_path):
+@pytest.mark.parametrize("method", [None, "paper"])  # learn's default (improved), and the paper's learner
+def test_learn_records_the_first_and_last_trial_for_the_figures(tmp_path, method):
     import json
 
     from hil.cli import main
 
     run = tmp_path / "run"
-    assert main(["learn", "--trials", "3", "--seed", "2", "--out", str(run), "--quiet", "--no-figures"]) == 0
+    chosen = [] if method is None else ["--method", method]
+    assert main(["learn", "--trials", "3", "--seed", "2", "--out", str(run), "--quiet", "--no-figures", *chosen]) == 0
+    assert json.loads((run / "metrics.json").read_text())["config"]["method"] == (method or "improved")
     trials = json.loads((run / "metrics.json").read_text())["trials"]
     assert ["trace" in t for t in trials] == [True, False, True]
     trace = trials[-1]["trace"]

@@ -56,8 +56,11 @@ def test_learn_command_writes_metrics_and_weights(tmp_path, capsys):
         assert all(r["kind"] in ("extension", "placement") for r in trial["reflexes"])
         assert all(x < 0 for x in trial["footfalls_m"]) and len(trial["footfalls_m"]) >= 4
     assert {"wall_s", "sim_s"} <= metrics["summary"].keys()
+    assert metrics["config"]["method"] == "improved"  # learn's default: a row of weights per height context
     with np.load(out / "weights.npz", allow_pickle=False) as data:
-        assert data["weights"].shape == (28,) and float(data["cell_width_m"]) == 0.04
+        assert data["weights"].shape == (4, 28) and float(data["cell_width_m"]) == 0.04
+    assert {p.name for p in (out / "figures").iterdir()} >= {f"{name}.{ext}" for ext in ("png", "svg") for name in
+                                                             ("learning_curve", "footfall_spread", "weights")}
     assert "wrote" in capsys.readouterr().out
     assert main(["learn", "--trials", "2", "--seed", "1", "--out", str(out), "--quiet", "--obstacle-height-m", "0.07",
                  "--range-noise-m", "0.01"]) == 0  # the same command again: finished, nothing runs

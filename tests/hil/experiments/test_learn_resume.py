@@ -3,6 +3,7 @@ and whether PyBullet's in-memory save and restore is bit-exact for this plant.""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -21,10 +22,12 @@ from hil.cli import main
 from hil.experiments import learn
 from hil.experiments.journal import FolderLock, read_journal
 from hil.experiments.learn import LearnConfig, NotReproduced, folder_state, learn_into
+from hil.experiments.methods import DEFAULT_METHOD
 
 REPO = Path(__file__).resolve().parents[3]
 SEED, TRIALS = 5, 4
-CONFIG = LearnConfig(trials=TRIALS, seed=SEED, trace_trials=(0, -1))  # what `learn --trials 4 --seed 5` runs
+CONFIG = LearnConfig(trials=TRIALS, seed=SEED, trace_trials=(0, -1),
+                     method=DEFAULT_METHOD)  # what `learn --trials 4 --seed 5` runs
 ARGV = ["learn", "--trials", str(TRIALS), "--seed", str(SEED), "--no-figures", "--quiet"]
 
 
@@ -154,18 +157,21 @@ def test_a_finished_run_whose_weights_do_not_verify_is_refused(reference, tmp_pa
         folder_state(out, CONFIG)
 
 
-def test_a_finished_folder_of_before_stamps_counts_as_finished(reference, tmp_path):
+def test_a_finished_folder_of_before_stamps_counts_as_finished(tmp_path):
+    paper = dataclasses.replace(CONFIG, method="paper")  # the only learner with weights before stamps
+    reference = tmp_path / "reference"
+    learn_into(paper, reference)
     out = tmp_path / "old"
     out.mkdir()
     metrics = json.loads((reference / "metrics.json").read_text())
     old = {k: metrics[k] for k in ("config", "trials", "summary")}  # as learn wrote it before this version
     (out / "metrics.json").write_text(json.dumps(old))
     shutil.copy(reference / "weights.npz", out / "weights.npz")
-    outcome = learn_into(CONFIG, out)
+    outcome = learn_into(paper, out)
     assert outcome.status == "finished" and outcome.metrics["trials"] == old["trials"]
     (out / "weights.npz").unlink()  # a method with weights (paper) whose weights are gone: not finished
     with pytest.raises(InputError, match="does not verify .*no such weights file"):
-        learn_into(CONFIG, out)
+        learn_into(paper, out)
 
 
 def test_a_locked_folder_is_refused(tmp_path, capsys):
