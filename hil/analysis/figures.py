@@ -69,12 +69,26 @@ def weights_by_distance(weights: np.ndarray, cell_width_m: float, out: Path,
     """The learned weight of each range cell against the cell's distance (the paper's Fig. 4)."""
     distance = ((np.arange(len(weights)) + 0.5) * cell_width_m).tolist()
     fig, ax = subplots(figsize=(6, 3.2))
-    ax.bar(distance, weights, width=cell_width_m * 0.9, color=np.where(np.asarray(weights) >= 0, "C1", "C0"))
-    ax.axhline(0.0, color="k", lw=0.6)
+    _weight_bars(ax, distance, weights, cell_width_m)
     ax.set(xlabel="range cell (distance from the sensor) [m]", ylabel="weight [s of burst]",
            title="Learned weights (ordered by distance for display only)")
     _save(fig, out, name)
     return {"distance_m": distance, "weight_s": [float(w) for w in weights]}
+
+
+def _weight_bars(ax: Any, distance_m: list[float], weights: Any, cell_width_m: float) -> None:
+    """One row of weights as bars against the cells' distances, lengthening orange, shortening blue."""
+    ax.bar(distance_m, weights, width=cell_width_m * 0.9, color=np.where(np.asarray(weights) >= 0, "C1", "C0"))
+    ax.axhline(0.0, color="k", lw=0.6)
+
+
+def _context_bounds_m(beam_heights_m: Sequence[float]) -> list[tuple[float, float]]:
+    """The obstacle heights each height context stands for [m], (lower, upper), lowest first: as the
+    controller's estimator bounds them (:meth:`controller.stepping.height.HeightEstimator.bounds_m`)."""
+    from controller.stepping.height import HeightEstimator, HeightEstimatorConfig
+
+    estimator = HeightEstimator(HeightEstimatorConfig(beam_heights_m=tuple(beam_heights_m)))
+    return [estimator.bounds_m(k) for k in range(estimator.n_contexts)]
 
 
 def weights_by_context(weights: np.ndarray, cell_width_m: float, beam_heights_m: Sequence[float], out: Path,
@@ -84,20 +98,18 @@ def weights_by_context(weights: np.ndarray, cell_width_m: float, beam_heights_m:
     one row. ``beam_heights_m``: the profile beams that bound the contexts (the controller's
     ``height.beam_heights_m``); a row has a context per gap between them and one at each end."""
     weights = np.atleast_2d(np.asarray(weights, dtype=float))
-    edges = [0.0, *beam_heights_m, float("inf")]
-    if len(edges) - 1 != weights.shape[0]:
-        raise ValueError(f"{weights.shape[0]} rows of weights but {len(edges) - 1} height contexts "
+    bounds = _context_bounds_m(beam_heights_m)
+    if len(bounds) != weights.shape[0]:
+        raise ValueError(f"{weights.shape[0]} rows of weights but {len(bounds)} height contexts "
                          f"from beams {list(beam_heights_m)}")
     distance = ((np.arange(weights.shape[1]) + 0.5) * cell_width_m).tolist()
-    labels = [f"obstacle below {edges[1]:g} m" if k == 0 else f"obstacle above {edges[k]:g} m"
-              if k == weights.shape[0] - 1 else f"obstacle {edges[k]:g}-{edges[k + 1]:g} m"
-              for k in range(weights.shape[0])]
+    labels = [f"obstacle below {hi:g} m" if lo == 0.0 else f"obstacle above {lo:g} m" if hi == float("inf")
+              else f"obstacle {lo:g}-{hi:g} m" for lo, hi in bounds]
     fig, axes = subplots(weights.shape[0], 1, figsize=(6, 1.6 * weights.shape[0] + 0.6), sharex=True,
                          sharey=True, squeeze=False)
     limit = max(float(np.abs(weights).max()), 1e-3)
     for ax, row, label in zip(axes[:, 0], weights, labels):
-        ax.bar(distance, row, width=cell_width_m * 0.9, color=np.where(row >= 0, "C1", "C0"))
-        ax.axhline(0.0, color="k", lw=0.6)
+        _weight_bars(ax, distance, row, cell_width_m)
         ax.set_ylim(-1.1 * limit, 1.1 * limit)
         ax.set_title(label, fontsize="small", loc="left")
     axes[-1, 0].set_xlabel("range cell (distance from the sensor) [m]")
@@ -357,8 +369,9 @@ def _weights_at(run: dict[str, Any], height_m: float) -> np.ndarray:
     weights = np.asarray(run["weights"], dtype=float)
     if weights.ndim == 1:
         return weights
-    beams = run["config"]["controller"]["height"]["beam_heights_m"]
-    return weights[min(sum(1 for b in beams if b <= height_m), weights.shape[0] - 1)]
+    bounds = _context_bounds_m(run["config"]["controller"]["height"]["beam_heights_m"])
+    row = next(k for k, (lo, hi) in enumerate(bounds) if lo <= height_m < hi)
+    return weights[min(row, weights.shape[0] - 1)]
 
 
 def _height_of(config: dict[str, Any]) -> float | None:

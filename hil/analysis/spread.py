@@ -94,7 +94,7 @@ def load_sweep_runs(folder: Path, method: str) -> dict[float, list[dict[str, Any
     """The ``method``'s cells of a sweep folder, grouped by obstacle height [m]: each a dict with
     ``seed`` and ``trials``. Cells of mixed heights are refused (this is a grid question)."""
     from hil.analysis.metrics import load_run
-    from hil.experiments.methods import resolve
+    from hil.experiments.methods import CONTROLLER_METHOD, resolve
 
     cells = folder / "cells"
     if not cells.is_dir():
@@ -103,7 +103,7 @@ def load_sweep_runs(folder: Path, method: str) -> dict[float, list[dict[str, Any
     for cell in sorted(p for p in cells.iterdir() if p.is_dir()):
         run = load_run(cell)
         config = run["config"]
-        if resolve(config.get("method", "paper")).name != method:
+        if resolve(config.get("method", CONTROLLER_METHOD)).name != method:
             continue
         if config.get("obstacle_heights_m"):
             raise InputError(f"{cell}: a run of mixed heights; R3 compares runs at one height each")

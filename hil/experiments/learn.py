@@ -479,7 +479,7 @@ def finished_problem(out: Path, metrics: dict[str, Any], trials: int) -> str | N
     if "format" in metrics:
         weights = metrics.get("weights_file")
     else:
-        weights = WEIGHTS_FILE if metrics["config"].get("method", "paper") in WEIGHTS_METHODS_V0 else None
+        weights = WEIGHTS_FILE if metrics["config"].get("method", CONTROLLER_METHOD) in WEIGHTS_METHODS_V0 else None
     if weights is not None:
         try:
             read_weights(out / str(weights))
@@ -689,17 +689,17 @@ def learn_into(config: LearnConfig, out_dir: str | Path, *, progress: bool = Fal
 
 
 def write_figures(out: Path, metrics: dict[str, Any], premotor) -> None:
-    from controller.stepping.improved import ImprovedPremotor
     from hil.analysis import figures
 
     fig_dir = out / "figures"
     trials = metrics["trials"]
     figures.learning_curve(trials, fig_dir)
     controller = metrics["config"]["controller"]
-    if isinstance(premotor, AdaptivePremotor):
-        figures.weights_by_distance(premotor.weights, controller["encoder"]["cell_width_m"], fig_dir)
-    elif isinstance(premotor, (ContextPremotor, ImprovedPremotor)):  # a row of weights per height context
-        figures.weights_by_context(premotor.weights, controller["encoder"]["cell_width_m"],
+    weights = _weights_of(premotor)
+    if weights is not None and weights.ndim == 1:
+        figures.weights_by_distance(weights, controller["encoder"]["cell_width_m"], fig_dir)
+    elif weights is not None:  # a row of weights per height context
+        figures.weights_by_context(weights, controller["encoder"]["cell_width_m"],
                                    controller["height"]["beam_heights_m"], fig_dir)
     late = last_window(len(trials))
     figures.footfall_spread(footfall_std_by_step([metrics], *late), fig_dir)
