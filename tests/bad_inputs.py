@@ -164,6 +164,13 @@ def setup_files(tmp: Path) -> None:
     (tmp / "bad_weights").mkdir()
     (tmp / "bad_weights" / "metrics.json").write_text(json.dumps(learn_metrics()))
     (tmp / "bad_weights" / "weights.npz").write_bytes(b"PK\x03\x04 this is not a zip archive at all")
+    import numpy as np
+
+    from controller.stepping.weights import save_weights
+
+    (tmp / "context_no_beams").mkdir()  # a row of weights per height context, and no beams that bound them
+    (tmp / "context_no_beams" / "metrics.json").write_text(json.dumps(learn_metrics()))
+    save_weights(tmp / "context_no_beams" / "weights.npz", np.zeros((4, 28)), 0.04, generations=1)
     (tmp / "invalid.toml").write_text("[axes.knee]\ngear_ratio = -6\n")
     (tmp / "wrong_types.toml").write_text('[axes.knee]\ngear_ratio = "six"\n[bus]\nbitrate = "fast"\n')
     (tmp / "deep.toml").write_text("x = " + "[" * 500 + "]" * 500 + "\n")
@@ -252,6 +259,9 @@ ROWS: tuple[Row, ...] = (
         ("figures", "{tmp}/wrong_list", "--out", "{tmp}/figs"), 3, ("wrong_list",), owner="A"),
     Row("figures_bad_trace", "figures from a run whose trace holds words, not numbers",
         ("figures", "{tmp}/bad_trace", "--out", "{tmp}/figs"), 3, ("trials[0].trace.t_s", "not a list of numbers")),
+    Row("figures_context_no_beams", "figures from a run whose weights have a row per height context and whose "
+        "config names no beams", ("figures", "{tmp}/context_no_beams", "--out", "{tmp}/figs"), 3,
+        ("controller.height.beam_heights_m",)),
     Row("figures_out_under_file", "figures with --out under a file",
         ("figures", "{tmp}/bad_trace", "--out", "{tmp}/a_file/figs"), 3, ("--out", "a_file", "not a folder")),
     Row("compare_missing", "compare with a file that does not exist (was exit 2)",

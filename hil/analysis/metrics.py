@@ -91,6 +91,11 @@ def load_run(folder: str | Path) -> dict[str, Any]:
             metrics["weights"], metrics["cell_width_m"] = read_weights(weights_path)
         except WeightsError as exc:
             raise InputError(str(exc)) from None
+        controller = metrics["config"].get("controller")
+        height = controller.get("height") if isinstance(controller, dict) else None
+        if metrics["weights"].ndim == 2 and not (isinstance(height, dict) and "beam_heights_m" in height):
+            raise InputError(f"{metrics_path}: config has no 'controller.height.beam_heights_m', which bound the "
+                             f"height contexts its weights have a row for")
     return metrics
 
 

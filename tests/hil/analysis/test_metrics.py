@@ -66,6 +66,24 @@ def test_an_unknown_version_or_a_wrong_structure_is_an_input_error_naming_the_fi
     assert str(folder / "metrics.json") in str(err.value) and words in str(err.value)
 
 
+def test_weights_of_a_row_per_height_context_need_the_beams_that_bound_the_contexts(tmp_path):
+    import numpy as np
+
+    from controller.stepping.weights import save_weights
+
+    folder = _folder(tmp_path, _metrics())
+    save_weights(folder / "weights.npz", np.zeros((4, 3)), 0.04, generations=1)
+    with pytest.raises(InputError, match="metrics.json: config has no 'controller.height.beam_heights_m'"):
+        load_run(folder)
+    with_beams = {**_metrics(), "config": {"seed": 2, "learning": True,
+                                           "controller": {"height": {"beam_heights_m": [0.05, 0.09, 0.13]}}}}
+    (folder / "metrics.json").write_text(json.dumps(with_beams))
+    assert load_run(folder)["weights"].shape == (4, 3)
+    save_weights(folder / "weights.npz", np.zeros(3), 0.04, generations=1)  # one row: no beams needed
+    (folder / "metrics.json").write_text(json.dumps(_metrics()))
+    assert load_run(folder)["weights"].shape == (3,)
+
+
 def test_damaged_json_and_damaged_weights_are_input_errors(tmp_path):
     folder = _folder(tmp_path, _metrics())
     (folder / "weights.npz").write_bytes(b"PK\x03\x04 not a zip")
